@@ -1,0 +1,57 @@
+"""MJX robot environments with a brax-compatible API.
+
+>>> import envs_mjx
+>>> envs_mjx.names()            # registered environments
+>>> env = envs_mjx.make("arm7", reward="path")
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+from envs_mjx.base import (
+    AutoResetWrapper,
+    EpisodeWrapper,
+    RobotEnv,
+    VmapWrapper,
+    sanitize_action,
+    wrap_for_training,
+)
+from envs_mjx.config import ConfigError
+
+# name -> "module:Class"; imported lazily so that `names()` costs nothing.
+_REGISTRY: dict[str, str] = {
+}
+
+
+def names() -> list[str]:
+    """Names accepted by :func:`make`, sorted."""
+    return sorted(_REGISTRY)
+
+
+def env_class(name: str) -> type[RobotEnv]:
+    """The environment class registered under ``name``."""
+    if name not in _REGISTRY:
+        raise ValueError(f"unknown environment {name!r}; valid names: {', '.join(names())}")
+    module, cls = _REGISTRY[name].split(":")
+    return getattr(importlib.import_module(module), cls)
+
+
+def make(name: str, **overrides: Any) -> RobotEnv:
+    """Build the environment ``name`` with config ``overrides`` (keyword = config field)."""
+    return env_class(name)(**overrides)
+
+
+__all__ = [
+    "AutoResetWrapper",
+    "ConfigError",
+    "EpisodeWrapper",
+    "RobotEnv",
+    "VmapWrapper",
+    "env_class",
+    "make",
+    "names",
+    "sanitize_action",
+    "wrap_for_training",
+]

@@ -1,0 +1,245 @@
+"""Brax-compatible environment base class and training wrappers.
+
+``RobotEnv`` subclasses :class:`brax.envs.base.Env` and returns
+:class:`brax.envs.base.State`, so brax's own wrappers and trainers accept every
+environment here.  ``reset(key)`` and ``step(state, action)`` are pure and unbatched.
+
+Conventions shared by all environments:
+
+* Actions arrive in ``[-1, 1]``; non-finite components are replaced by 0 and counted in
+  ``metrics["invalid_action"]``, then the action is clipped and multiplied by the
+  environment's scale vector ``C`` (``env.action_scale``).  See :func:`sanitize_action`.
+* ``state.info`` keeps every key it came in with (brax wrappers add their own), so an
+  environment's ``step`` updates ``info`` rather than rebuilding it.
+* ``state.info["params"]`` holds *episode parameters*: traced values that a trainer may
+  change during training without recompiling (for example the reference-state window
+  of the tracking environments).  ``reset(key, params)`` takes them and they survive
+  auto-resets.
+
+Wrappers (:func:`wrap_for_training` composes them):
+
+* :class:`EpisodeWrapper` — time limit; marks ``info["truncation"]`` (1 only when the
+  limit ends an episode that did not terminate), counts ``info["steps"]`` and keeps
+  running ``info["episode_return"]`` / ``info["episode_length"]``.
+* :class:`AutoResetWrapper` — on ``done`` calls ``reset`` with a fresh key per lane
+  (every episode gets a new goal and start), keeping the finished step's ``reward``,
+  ``done``, ``metrics``, ``truncation`` and the episode totals, and the terminal
+  observation in ``info["final_obs"]`` for bootstrapping.
+* :class:`VmapWrapper` — maps the unbatched env over a leading lane axis.
+"""
+
+from __future__ import annotations
+
+import abc
+from collections.abc import Mapping
+from typing import Any, ClassVar
+
+import jax
+import jax.numpy as jnp
+from brax.envs.base import Env, State, Wrapper
+
+from envs_mjx.config import apply_overrides
+
+__all__ = [
+    "AutoResetWrapper",
+    "EpisodeWrapper",
+    "RobotEnv",
+    "State",
+    "VmapWrapper",
+    "sanitize_action",
+    "wrap_for_training",
+]
+
+
+def sanitize_action(action: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Replace non-finite components by 0 and clip to [-1, 1].
+
+    Args:
+      action: ``[A]`` raw action (unbatched; works batched too).
+    Returns:
+      ``(clean [A], invalid [])`` where ``invalid`` is 1.0 if any component was non-finite.
+    """
+    finite = jnp.isfinite(action)
+    clean = jnp.clip(jnp.where(finite, action, 0.0), -1.0, 1.0)
+    invalid = jnp.any(~finite, axis=-1).astype(jnp.float32)
+    return clean, invalid
+
+
+class RobotEnv(Env, abc.ABC):
+    """Base class of the project's environments.
+
+    Subclasses define ``Config`` (a frozen dataclass with the thesis's defaults and a
+    ``validate()`` method), ``name``, ``observation_size``, ``action_size``,
+    ``action_scale`` and the pure ``reset`` / ``step``.
+    """
+
+    name: ClassVar[str] = "robot"
+    Config: ClassVar[type]
+
+    def __init__(self, config: Any | None = None, **overrides: Any):
+        cfg = self.default_config() if config is None else config
+        cfg = apply_overrides(cfg, overrides, owner=self.name)
+        validate = getattr(cfg, "validate", None)
+        if validate is not None:
+            validate()
+        self.config = cfg
+
+    @classmethod
+    def default_config(cls) -> Any:
+        """The thesis's settings for this environment (a frozen dataclass)."""
+        return cls.Config()
+
+    @property
+    def backend(self) -> str:
+        return "mjx"
+
+    @property
+    @abc.abstractmethod
+    def action_scale(self) -> jax.Array:
+        """The scale vector C, ``[action_size]``: env action = C * clip(a, -1, 1)."""
+
+    @property
+    def episode_length(self) -> int:
+        """Default time limit in control steps (``config.max_steps``)."""
+        return int(self.config.max_steps)
+
+    def default_params(self) -> dict[str, jax.Array]:
+        """Episode parameters (traced, schedulable) used when ``reset`` gets none."""
+        return {}
+
+    @abc.abstractmethod
+    def reset(self, rng: jax.Array, params: Mapping[str, jax.Array] | None = None) -> State:
+        """Start an episode. ``rng``: a PRNG key (unbatched)."""
+
+    @abc.abstractmethod
+    def step(self, state: State, action: jax.Array) -> State:
+        """Advance one control step with ``action`` in [-1, 1]^A."""
+
+
+def _reset(env: Env, key: jax.Array, params: Any) -> State:
+    """Call ``env.reset`` with episode parameters if the env takes them."""
+    if params is None:
+        return env.reset(key)
+    return env.reset(key, params)
+
+
+class _ParamWrapper(Wrapper):
+    """A wrapper whose ``reset`` forwards optional episode parameters."""
+
+    def reset(self, rng: jax.Array, params: Any = None) -> State:  # noqa: D102
+        return _reset(self.env, rng, params)
+
+
+class EpisodeWrapper(_ParamWrapper):
+    """Time limit with truncation marked apart from termination (unbatched)."""
+
+    def __init__(self, env: Env, episode_length: int):
+        super().__init__(env)
+        if int(episode_length) < 1:
+            raise ValueError(f"episode_length={episode_length!r} must be >= 1")
+        self.episode_length = int(episode_length)
+
+    def reset(self, rng: jax.Array, params: Any = None) -> State:
+        state = _reset(self.env, rng, params)
+        zero = jnp.zeros((), jnp.float32)
+        info = dict(state.info)
+        info.update(
+            steps=jnp.zeros((), jnp.int32),
+            truncation=zero,
+            episode_return=zero,
+            episode_length=zero,
+        )
+        return state.replace(info=info)
+
+    def step(self, state: State, action: jax.Array) -> State:
+        prev_done = state.done.astype(jnp.float32)
+        nstate = self.env.step(state, action)
+        info = dict(nstate.info)
+        steps = state.info["steps"] + 1
+        at_limit = steps >= self.episode_length
+        terminated = nstate.done.astype(jnp.float32)
+        info["truncation"] = jnp.where(at_limit, 1.0 - terminated, 0.0)
+        info["steps"] = steps
+        info["episode_return"] = state.info["episode_return"] * (1.0 - prev_done) + nstate.reward
+        info["episode_length"] = state.info["episode_length"] * (1.0 - prev_done) + 1.0
+        done = jnp.maximum(terminated, at_limit.astype(jnp.float32))
+        return nstate.replace(done=done, info=info)
+
+
+class AutoResetWrapper(_ParamWrapper):
+    """Resets finished episodes with a fresh key per lane (unbatched; vmap outside).
+
+    Per-lane reset keys live in ``info["reset_key"]``.  Keys kept from the finished
+    step (not from the fresh episode) are listed in ``keep_keys``.
+    """
+
+    keep_keys = ("truncation", "episode_return", "episode_length", "params")
+
+    def reset(self, rng: jax.Array, params: Any = None) -> State:
+        rng, sub = jax.random.split(rng)
+        state = _reset(self.env, sub, params)
+        info = dict(state.info)
+        info["reset_key"] = rng
+        info["final_obs"] = state.obs
+        return state.replace(info=info)
+
+    def step(self, state: State, action: jax.Array) -> State:
+        nstate = self.env.step(state, action)
+        key, sub = jax.random.split(nstate.info["reset_key"])
+        fresh = _reset(self.env, sub, nstate.info.get("params"))
+        done = nstate.done > 0
+
+        def pick(a, b):
+            return jnp.where(done, a, b)
+
+        fresh_info = {k: v for k, v in fresh.info.items() if k in nstate.info}
+        info = dict(nstate.info)
+        merged = jax.tree.map(pick, fresh_info, {k: nstate.info[k] for k in fresh_info})
+        info.update(merged)
+        for k in self.keep_keys:
+            if k in nstate.info:
+                info[k] = nstate.info[k]
+        info["final_obs"] = nstate.obs
+        info["reset_key"] = key
+        return nstate.replace(
+            pipeline_state=jax.tree.map(pick, fresh.pipeline_state, nstate.pipeline_state),
+            obs=pick(fresh.obs, nstate.obs),
+            info=info,
+        )
+
+
+class VmapWrapper(_ParamWrapper):
+    """Vectorises an unbatched env over a leading lane axis.
+
+    ``reset(keys)`` takes ``[B, 2]``-shaped keys (``jax.random.split(key, B)``), or a
+    single key when ``batch_size`` is given.
+    """
+
+    def __init__(self, env: Env, batch_size: int | None = None):
+        super().__init__(env)
+        self.batch_size = batch_size
+
+    def reset(self, rng: jax.Array, params: Any = None) -> State:
+        if self.batch_size is not None:
+            rng = jax.random.split(rng, self.batch_size)
+        if params is None:
+            return jax.vmap(self.env.reset)(rng)
+        return jax.vmap(lambda k: _reset(self.env, k, params))(rng)
+
+    def step(self, state: State, action: jax.Array) -> State:
+        return jax.vmap(self.env.step)(state, action)
+
+
+def wrap_for_training(env: Env, episode_length: int | None = None, num_envs: int | None = None) -> Env:
+    """``VmapWrapper(AutoResetWrapper(EpisodeWrapper(env)))``.
+
+    Args:
+      env: an unbatched env.
+      episode_length: time limit; defaults to ``env.episode_length`` when the env has one.
+      num_envs: if given, ``reset`` takes one key and splits it into ``num_envs`` lanes.
+    """
+    if episode_length is None:
+        episode_length = getattr(env, "episode_length", None)
+        if episode_length is None:
+            raise ValueError("episode_length is required for an env without a default episode_length")
+    return VmapWrapper(AutoResetWrapper(EpisodeWrapper(env, episode_length)), batch_size=num_envs)
