@@ -6,4 +6,30 @@ replay buffers and evaluation helpers, designed to be imported into other JAX co
 
 __version__ = "0.1.0"
 
-__all__ = ["__version__"]
+from jaxrl_robot.networks import (  # noqa: E402
+    Critic,
+    GaussianActor,
+    apply_actor,
+    gaussian_entropy,
+    gaussian_kl,
+    gaussian_log_prob,
+    gaussian_sample,
+)
+from jaxrl_robot.returns import gae, lambda_returns, n_step_returns, td_errors  # noqa: E402
+
+__all__ = [
+    "__version__",
+    # returns (Eq. 4.3, 5.12, 5.14)
+    "gae",
+    "lambda_returns",
+    "n_step_returns",
+    "td_errors",
+    # networks
+    "Critic",
+    "GaussianActor",
+    "apply_actor",
+    "gaussian_entropy",
+    "gaussian_kl",
+    "gaussian_log_prob",
+    "gaussian_sample",
+]

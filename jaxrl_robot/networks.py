@@ -1,0 +1,176 @@
+"""Actor and critic networks (flax.linen) and diagonal-Gaussian policy helpers.
+
+Networks are plain ``flax.linen`` modules: ``variables = net.init(key, obs)`` and
+``net.apply(variables, obs)``, pure functions of their parameters.
+
+* :class:`MLP` — fully connected ReLU trunk.
+* :class:`Critic` — ``V(s)``: MLP with a linear scalar output (no batch-norm; the thesis keeps
+  the critic's output linear, §4.1.3).
+* :class:`GaussianActor` — the mean action ``μ(s) = tanh(...)`` in ``[-1, 1]`` (the
+  environment multiplies by its scale vector C) and the log standard deviation, either a
+  fixed hyper-parameter vector σ (the thesis, Table 5.2: σ = [0.8, 0.8, 0.1]) or a learned
+  state-independent log-std initialised at ``log σ``. With ``batch_norm=True`` the input and
+  every hidden pre-activation are batch-normalised (thesis Fig. 4.2–4.3): batch statistics
+  while training, moving averages for acting and evaluation (SPEC §A11).
+
+Use :func:`apply_actor` to call an actor with or without batch-norm in either mode, and the
+``gaussian_*`` functions for log-probabilities, entropy and KL divergence.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import chex
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+
+__all__ = [
+    "MLP",
+    "Critic",
+    "GaussianActor",
+    "apply_actor",
+    "gaussian_entropy",
+    "gaussian_kl",
+    "gaussian_log_prob",
+    "gaussian_sample",
+]
+
+_LOG_2PI = jnp.log(2.0 * jnp.pi)
+
+
+def _dense(features: int, scale: float, use_bias: bool = True) -> nn.Dense:
+    return nn.Dense(features, use_bias=use_bias, kernel_init=nn.initializers.orthogonal(scale))
+
+
+class MLP(nn.Module):
+    """ReLU MLP ``[..., D] -> [..., hidden[-1]]`` (orthogonal init, gain √2)."""
+
+    hidden: Sequence[int] = (200, 200)
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        for width in self.hidden:
+            x = nn.relu(_dense(width, jnp.sqrt(2.0))(x))
+        return x
+
+
+class Critic(nn.Module):
+    """State-value network ``V(s)``: ``[..., obs] -> [...]``."""
+
+    hidden: Sequence[int] = (200, 200)
+
+    @nn.compact
+    def __call__(self, obs: jax.Array) -> jax.Array:
+        x = MLP(self.hidden)(obs)
+        return _dense(1, 1.0)(x)[..., 0]
+
+
+class GaussianActor(nn.Module):
+    """Diagonal-Gaussian policy head: ``obs [..., D] -> (mean [..., A], log_std [..., A])``.
+
+    Attributes:
+      action_size: A.
+      hidden: hidden layer widths (thesis arm: (200, 200); mobile robot: (256, 256)).
+      sigma: initial / fixed standard deviation, one value per action dimension or a scalar.
+      learn_std: False → σ is the fixed hyper-parameter ``sigma``; True → a learned log-std.
+      batch_norm: normalise the input and every hidden pre-activation (bias-free linear
+        layers, as the BN shift replaces the bias).
+      bn_momentum: moving-average decay of the batch-norm statistics.
+      bn_axis_name: mapped axis name over which batch statistics are averaged (set it when
+        the actor runs inside ``shard_map``/``vmap`` with a named axis so that every device
+        normalises with the global mini-batch statistics).
+    """
+
+    action_size: int
+    hidden: Sequence[int] = (200, 200)
+    sigma: Sequence[float] | float = 0.5
+    learn_std: bool = False
+    batch_norm: bool = False
+    bn_momentum: float = 0.99
+    bn_axis_name: str | None = None
+
+    @nn.compact
+    def __call__(self, obs: jax.Array, train: bool = False) -> tuple[jax.Array, jax.Array]:
+        x = obs
+        if self.batch_norm:
+            x = self._bn(x, train)
+        for width in self.hidden:
+            x = _dense(width, jnp.sqrt(2.0), use_bias=not self.batch_norm)(x)
+            if self.batch_norm:
+                x = self._bn(x, train)
+            x = nn.relu(x)
+        mean = jnp.tanh(_dense(self.action_size, 0.01)(x))
+        sigma = jnp.broadcast_to(jnp.asarray(self.sigma, jnp.float32), (self.action_size,))
+        if self.learn_std:
+            log_std = self.param("log_std", lambda _k, s: jnp.log(s), sigma)
+        else:
+            log_std = jnp.log(sigma)
+        return mean, jnp.broadcast_to(log_std, mean.shape)
+
+    def _bn(self, x: jax.Array, train: bool) -> jax.Array:
+        return nn.BatchNorm(
+            use_running_average=not train,
+            momentum=self.bn_momentum,
+            epsilon=1e-5,
+            axis_name=self.bn_axis_name if train else None,
+        )(x)
+
+
+def apply_actor(
+    actor: nn.Module,
+    params: Any,
+    batch_stats: Any,
+    obs: jax.Array,
+    train: bool = False,
+) -> tuple[tuple[jax.Array, jax.Array], Any]:
+    """Call ``actor`` in acting (``train=False``) or training mode.
+
+    Args:
+      actor: a :class:`GaussianActor` (or any module with the same call signature).
+      params: the actor's ``params`` collection.
+      batch_stats: its ``batch_stats`` collection, or ``{}`` / ``None`` without batch-norm.
+      obs: ``[..., D]`` observations (a mini-batch ``[B, D]`` when ``train=True``).
+      train: True → normalise with the statistics of ``obs`` and update the moving averages;
+        False → normalise with the moving averages (one state is enough).
+    Returns:
+      ``((mean, log_std), new_batch_stats)``; ``new_batch_stats is batch_stats`` unless
+      batch-norm ran in training mode.
+    """
+    variables = {"params": params}
+    if batch_stats:
+        variables["batch_stats"] = batch_stats
+    if train and batch_stats:
+        out, updates = actor.apply(variables, obs, train=True, mutable=["batch_stats"])
+        return out, updates["batch_stats"]
+    return actor.apply(variables, obs, train=False), batch_stats
+
+
+def gaussian_log_prob(mean: jax.Array, log_std: jax.Array, action: jax.Array) -> jax.Array:
+    """``log π(a|s)`` of a diagonal Gaussian, summed over the last axis: ``[..., A] -> [...]``."""
+    chex.assert_equal_shape((mean, log_std, action))
+    z = (action - mean) * jnp.exp(-log_std)
+    return jnp.sum(-0.5 * z**2 - log_std - 0.5 * _LOG_2PI, axis=-1)
+
+
+def gaussian_entropy(log_std: jax.Array) -> jax.Array:
+    """Entropy ``H(π(·|s))`` of a diagonal Gaussian: ``[..., A] -> [...]``."""
+    return jnp.sum(log_std + 0.5 * (1.0 + _LOG_2PI), axis=-1)
+
+
+def gaussian_kl(mean_p: jax.Array, log_std_p: jax.Array, mean_q: jax.Array, log_std_q: jax.Array) -> jax.Array:
+    """``KL(p ‖ q)`` of diagonal Gaussians, summed over the last axis: ``[..., A] -> [...]``.
+
+    With ``p = π_old`` and ``q = π_θ`` this is the penalty of Eq. 5.3.
+    """
+    chex.assert_equal_shape((mean_p, log_std_p, mean_q, log_std_q))
+    var_ratio = jnp.exp(2.0 * (log_std_p - log_std_q))
+    mahal = ((mean_p - mean_q) * jnp.exp(-log_std_q)) ** 2
+    return jnp.sum(0.5 * (var_ratio + mahal - 1.0) + log_std_q - log_std_p, axis=-1)
+
+
+def gaussian_sample(key: jax.Array, mean: jax.Array, log_std: jax.Array) -> jax.Array:
+    """Draw ``a ~ N(mean, exp(log_std)²)``: ``[..., A] -> [..., A]``."""
+    return mean + jnp.exp(log_std) * jax.random.normal(key, mean.shape, mean.dtype)

@@ -1,0 +1,141 @@
+"""GAE, λ-returns and n-step returns against hand-computed values and plain Python loops."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxrl_robot.returns import gae, lambda_returns, n_step_returns, td_errors
+
+
+def loop_gae(r, v, nv, term, trunc, gamma, lam):
+    """Eq. 5.12 written out: A_t = Σ_k (γλ)^k δ_{t+k} up to the episode or stream end."""
+    T = len(r)
+    delta = [r[t] + gamma * (1 - term[t]) * nv[t] - v[t] for t in range(T)]
+    adv = []
+    for t in range(T):
+        total, coef = 0.0, 1.0
+        for k in range(t, T):
+            total += coef * delta[k]
+            if term[k] or trunc[k]:
+                break
+            coef *= gamma * lam
+        adv.append(total)
+    return np.array(adv)
+
+
+def loop_nstep(r, nv, term, trunc, gamma, n):
+    """R_t^{(k)} = Σ_{i<k} γ^i r_{t+i} + γ^k V(s'_{t+k-1}), k ≤ n, stopping at episode/stream end."""
+    T = len(r)
+    out = []
+    for t in range(T):
+        total, disc = 0.0, 1.0
+        for k in range(t, min(T, t + n)):
+            total += disc * r[k]
+            disc *= gamma
+            last = term[k] or trunc[k] or k == min(T, t + n) - 1
+            if last:
+                total += 0.0 if term[k] else disc * nv[k]
+                break
+        out.append(total)
+    return np.array(out)
+
+
+def loop_lambda_returns(r, nv, term, trunc, gamma, lam):
+    """(1-λ) Σ_{n=1}^{L-1} λ^{n-1} R^{(n)} + λ^{L-1} R^{(L)} with L the steps left in the episode segment."""
+    T = len(r)
+    out = []
+    for t in range(T):
+        L = 0
+        for k in range(t, T):
+            L += 1
+            if term[k] or trunc[k]:
+                break
+        rets = [loop_nstep(r[t:], nv[t:], term[t:], trunc[t:], gamma, n)[0] for n in range(1, L + 1)]
+        val = sum((1 - lam) * lam ** (n - 1) * rets[n - 1] for n in range(1, L)) + lam ** (L - 1) * rets[L - 1]
+        out.append(val)
+    return np.array(out)
+
+
+def f32(x):
+    return jnp.asarray(x, jnp.float32)
+
+
+def test_gae_hand_computed_truncation_bootstraps_termination_does_not():
+    gamma, lam = 0.5, 0.5
+    r = f32([1.0, 1.0, 1.0])
+    v = f32([0.0, 0.0, 0.0])
+    nv = f32([2.0, 2.0, 2.0])
+    # Termination at t=1: δ_1 = 1 (no bootstrap), δ_0 = 1 + 0.5*2 = 2, A_0 = 2 + 0.25*1 = 2.25, A_2 = 1 + 1 = 2.
+    adv = gae(r, v, nv, f32([0, 1, 0]), f32([0, 0, 0]), gamma, lam)
+    np.testing.assert_allclose(adv, [2.25, 1.0, 2.0])
+    # Truncation at t=1: δ_1 = 1 + 0.5*2 = 2 (bootstraps from V(s'_1)); the recursion still stops there.
+    adv = gae(r, v, nv, f32([0, 0, 0]), f32([0, 1, 0]), gamma, lam)
+    np.testing.assert_allclose(adv, [2.5, 2.0, 2.0])
+
+
+def test_lambda_returns_hand_computed():
+    gamma, lam = 0.5, 0.5
+    r = f32([1.0, 1.0])
+    nv = f32([4.0, 8.0])
+    # R_1 = 1 + 0.5*8 = 5; R_0 = 1 + 0.5*((1-0.5)*4 + 0.5*5) = 3.25
+    np.testing.assert_allclose(lambda_returns(r, nv, f32([0, 0]), f32([0, 0]), gamma, lam), [3.25, 5.0])
+    # terminal at t=1 → R_1 = 1; R_0 = 1 + 0.5*(0.5*4 + 0.5*1) = 2.25
+    np.testing.assert_allclose(lambda_returns(r, nv, f32([0, 1]), f32([0, 0]), gamma, lam), [2.25, 1.0])
+    # truncated at t=0 → R_0 = 1 + 0.5*4 = 3 (bootstrap, no look-ahead into the next episode)
+    np.testing.assert_allclose(lambda_returns(r, nv, f32([0, 0]), f32([1, 0]), gamma, lam), [3.0, 5.0])
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_against_python_loops_with_random_episode_ends(seed):
+    rng = np.random.default_rng(seed)
+    T, gamma, lam = 12, 0.9, 0.95
+    r = rng.normal(size=T)
+    v = rng.normal(size=T)
+    nv = rng.normal(size=T)
+    term = (rng.random(T) < 0.2).astype(float)
+    trunc = ((rng.random(T) < 0.2) & (term == 0)).astype(float)
+    args = [f32(x) for x in (r, v, nv, term, trunc)]
+    np.testing.assert_allclose(gae(*args, gamma, lam), loop_gae(r, v, nv, term, trunc, gamma, lam), atol=1e-5)
+    ret = lambda_returns(args[0], args[2], args[3], args[4], gamma, lam)
+    np.testing.assert_allclose(ret, loop_lambda_returns(r, nv, term, trunc, gamma, lam), atol=1e-5)
+    for n in (1, 3, T):
+        got = n_step_returns(args[0], args[2], args[3], args[4], gamma, n)
+        np.testing.assert_allclose(got, loop_nstep(r, nv, term, trunc, gamma, n), atol=1e-5)
+    got = n_step_returns(args[0], args[2], args[3], args[4], gamma, None)
+    np.testing.assert_allclose(got, loop_nstep(r, nv, term, trunc, gamma, T), atol=1e-5)
+
+
+def test_lambda_returns_equal_gae_plus_values_and_limits():
+    rng = np.random.default_rng(3)
+    T, gamma = 9, 0.9
+    v_all = rng.normal(size=T + 1)
+    r, v, nv = f32(rng.normal(size=T)), f32(v_all[:-1]), f32(v_all[1:])  # consistent: nv[t] = v[t+1]
+    term = f32([0, 0, 1, 0, 0, 0, 0, 0, 0])
+    trunc = f32([0, 0, 0, 0, 0, 1, 0, 0, 0])
+    for lam in (0.0, 0.7, 1.0):
+        np.testing.assert_allclose(
+            lambda_returns(r, nv, term, trunc, gamma, lam), gae(r, v, nv, term, trunc, gamma, lam) + v, atol=1e-5
+        )
+    # λ = 0 gives the TD error (Eq. 5.7)
+    np.testing.assert_allclose(gae(r, v, nv, term, trunc, gamma, 0.0), td_errors(r, v, nv, term, gamma), atol=1e-6)
+
+
+def test_vmapped_over_lanes_and_jittable():
+    rng = np.random.default_rng(4)
+    T, B = 6, 3
+    r, v, nv = (f32(rng.normal(size=(T, B))) for _ in range(3))
+    zeros = jnp.zeros((T, B))
+    fn = jax.jit(jax.vmap(gae, in_axes=(1, 1, 1, 1, 1, None, None), out_axes=1), static_argnums=(5, 6))
+    out = fn(r, v, nv, zeros, zeros, 0.9, 0.95)
+    assert out.shape == (T, B)
+    np.testing.assert_allclose(out[:, 1], gae(r[:, 1], v[:, 1], nv[:, 1], zeros[:, 1], zeros[:, 1], 0.9, 0.95))
+
+
+def test_bad_shapes_rejected():
+    with pytest.raises(AssertionError):
+        gae(jnp.zeros((3, 2)), jnp.zeros((3, 2)), jnp.zeros((3, 2)), jnp.zeros((3, 2)), jnp.zeros((3, 2)), 0.9, 0.9)
+    with pytest.raises(AssertionError):
+        gae(jnp.zeros(3), jnp.zeros(4), jnp.zeros(3), jnp.zeros(3), jnp.zeros(3), 0.9, 0.9)
+    with pytest.raises(ValueError, match="n=0"):
+        n_step_returns(jnp.zeros(3), jnp.zeros(3), jnp.zeros(3), jnp.zeros(3), 0.9, 0)
