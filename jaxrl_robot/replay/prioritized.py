@@ -1,0 +1,189 @@
+"""Prioritised experience replay on the sum-tree (thesis §3.2, Schaul et al.).
+
+``make_prioritized_replay(capacity, batch_size, alpha, beta0, beta_increment, ...)`` returns
+``PrioritizedReplay(init, add, sample, update_priorities)``, pure functions over a
+:class:`PrioritizedReplayState`.
+
+* Sampling probability ``P(i) = p_i^α / Σ_k p_k^α`` (Eq. 3.9): the tree stores ``p_i^α``
+  and is sampled stratified (Fig. 3.2).
+* Importance-sampling weights ``w_i = (1 / (N · P(i)))^β`` normalised by the largest weight
+  of the sampled mini-batch so that ``max w = 1`` (Eq. 3.10); ``N`` is the number of
+  stored transitions.
+* ``β`` starts at ``β0`` and grows by ``beta_increment`` with every priority update (one
+  per learning step), capped at 1.
+* New transitions enter with the largest priority seen so far (so each is replayed at
+  least once soon), or with priorities the caller gives (a worker that computed its own
+  TD errors, thesis §4.2).
+* After learning, :func:`update_priorities` sets ``p_i = |δ_i| + ε`` from the TD errors
+  ``δ`` of the sampled transitions; ``ε > 0`` keeps every stored transition reachable.
+
+Nothing is jitted here; jit the caller and donate the buffer state.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import chex
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from jaxrl_robot.replay import sum_tree
+from jaxrl_robot.replay.uniform import empty_storage, ring_write
+
+__all__ = [
+    "PrioritizedReplay",
+    "PrioritizedReplayState",
+    "PrioritizedSample",
+    "importance_weights",
+    "make_prioritized_replay",
+]
+
+
+@struct.dataclass
+class PrioritizedReplayState:
+    """Prioritised buffer state.
+
+    Attributes:
+      data: pytree of ``[capacity, ...]`` arrays.
+      tree: sum-tree over ``p_i^α``.
+      insert_pos, size: ``[] int32`` ring position and fill level.
+      max_priority: ``[]`` largest raw priority ``p`` seen (new items enter with it).
+      beta: ``[]`` current importance-sampling exponent β.
+      capacity: static capacity.
+    """
+
+    data: Any
+    tree: sum_tree.SumTreeState
+    insert_pos: jax.Array
+    size: jax.Array
+    max_priority: jax.Array
+    beta: jax.Array
+    capacity: int = struct.field(pytree_node=False)
+
+
+class PrioritizedSample(NamedTuple):
+    """A prioritised mini-batch.
+
+    Attributes:
+      experience: pytree of ``[B, ...]`` items.
+      indices: ``[B] int32`` slots (pass them back to ``update_priorities``).
+      probabilities: ``[B]`` sampling probabilities ``P(i)`` (Eq. 3.9).
+      weights: ``[B]`` importance weights, max-normalised (Eq. 3.10).
+    """
+
+    experience: Any
+    indices: jax.Array
+    probabilities: jax.Array
+    weights: jax.Array
+
+
+class PrioritizedReplay(NamedTuple):
+    """``init(example_item)``, ``add(state, items, priorities=None, mask=None)``,
+    ``sample(key, state)``, ``update_priorities(state, indices, td_errors)``."""
+
+    init: Callable[..., PrioritizedReplayState]
+    add: Callable[..., PrioritizedReplayState]
+    sample: Callable[..., PrioritizedSample]
+    update_priorities: Callable[..., PrioritizedReplayState]
+
+
+def importance_weights(probabilities: jax.Array, size: jax.Array, beta: jax.Array) -> jax.Array:
+    """Eq. 3.10: ``w_i = (N · P(i))^(-β) / max_j w_j`` over the mini-batch: ``[B] -> [B]``."""
+    chex.assert_rank(probabilities, 1)
+    log_w = -beta * jnp.log(size.astype(probabilities.dtype) * probabilities)
+    return jnp.exp(log_w - jnp.max(log_w))
+
+
+def make_prioritized_replay(
+    capacity: int,
+    batch_size: int,
+    alpha: float = 0.6,
+    beta0: float = 0.4,
+    beta_increment: float = 0.001,
+    priority_eps: float = 1e-6,
+    branching: int = 16,
+) -> PrioritizedReplay:
+    """Prioritised replay (thesis Table 3.2 defaults: α 0.6, β0 0.4, β increment 0.001).
+
+    Args:
+      capacity: number of transitions kept (oldest overwritten).
+      batch_size: mini-batch size ``m`` (number of strata).
+      alpha: priority exponent α ∈ [0, 1] (0 = uniform).
+      beta0: initial importance exponent β0 ∈ [0, 1].
+      beta_increment: added to β at each ``update_priorities`` (β ≤ 1).
+      priority_eps: ε added to ``|δ|``.
+      branching: sum-tree branching factor (2 = the binary tree of Fig. 3.2).
+    Raises:
+      ValueError: naming the field and its allowed range.
+    """
+    checks = {
+        "capacity": (capacity, int(capacity) >= 1, ">= 1"),
+        "batch_size": (batch_size, int(batch_size) >= 1, ">= 1"),
+        "alpha": (alpha, 0.0 <= alpha <= 1.0, "in [0, 1]"),
+        "beta0": (beta0, 0.0 <= beta0 <= 1.0, "in [0, 1]"),
+        "beta_increment": (beta_increment, beta_increment >= 0.0, ">= 0"),
+        "priority_eps": (priority_eps, priority_eps > 0.0, "> 0"),
+    }
+    for name, (value, ok, allowed) in checks.items():
+        if not ok:
+            raise ValueError(f"{name}={value!r} is out of range; allowed {allowed}")
+    capacity, batch_size = int(capacity), int(batch_size)
+
+    def init(example_item: Any) -> PrioritizedReplayState:
+        """Empty buffer for items shaped like ``example_item`` (one item, no batch axis)."""
+        zero = jnp.zeros((), jnp.int32)
+        return PrioritizedReplayState(
+            data=empty_storage(example_item, capacity),
+            tree=sum_tree.init(capacity, branching),
+            insert_pos=zero,
+            size=zero,
+            max_priority=jnp.ones((), jnp.float32),
+            beta=jnp.asarray(beta0, jnp.float32),
+            capacity=capacity,
+        )
+
+    def add(
+        state: PrioritizedReplayState,
+        items: Any,
+        priorities: jax.Array | None = None,
+        mask: jax.Array | None = None,
+    ) -> PrioritizedReplayState:
+        """Store the rows of ``items`` ``[N, ...]`` where ``mask [N]`` is True.
+
+        ``priorities [N]``: raw priorities ``p`` (e.g. ``|δ| + ε`` from a worker's critic);
+        default: the current ``max_priority``.
+        """
+        data, slots, keep, pos, size = ring_write(state.data, items, state.insert_pos, state.size, capacity, mask)
+        if priorities is None:
+            p = jnp.full(slots.shape, state.max_priority)
+            max_priority = state.max_priority
+        else:
+            p = jnp.abs(priorities.astype(jnp.float32)) + priority_eps
+            max_priority = jnp.maximum(state.max_priority, jnp.max(jnp.where(keep, p, 0.0)))
+        tree = sum_tree.set(state.tree, slots, p**alpha, mask=keep)
+        return state.replace(data=data, tree=tree, insert_pos=pos, size=size, max_priority=max_priority)
+
+    def sample(key: jax.Array, state: PrioritizedReplayState) -> PrioritizedSample:
+        """Stratified prioritised mini-batch with probabilities and IS weights at the current β."""
+        indices = sum_tree.stratified_sample(key, state.tree, batch_size)
+        probs = sum_tree.probabilities(state.tree, indices)
+        weights = importance_weights(probs, state.size, state.beta)
+        experience = jax.tree.map(lambda d: d[indices], state.data)
+        return PrioritizedSample(experience=experience, indices=indices, probabilities=probs, weights=weights)
+
+    def update_priorities(
+        state: PrioritizedReplayState, indices: jax.Array, td_errors: jax.Array
+    ) -> PrioritizedReplayState:
+        """Set ``p_i = |δ_i| + ε`` at ``indices [B]`` (repeats: last wins) and anneal β."""
+        p = jnp.abs(td_errors.astype(jnp.float32)) + priority_eps
+        tree = sum_tree.set(state.tree, indices, p**alpha)
+        return state.replace(
+            tree=tree,
+            max_priority=jnp.maximum(state.max_priority, jnp.max(p)),
+            beta=jnp.minimum(state.beta + beta_increment, 1.0),
+        )
+
+    return PrioritizedReplay(init=init, add=add, sample=sample, update_priorities=update_priorities)
