@@ -14,7 +14,9 @@ Networks are plain ``flax.linen`` modules: ``variables = net.init(key, obs)`` an
   while training, moving averages for acting and evaluation (SPEC §A11).
 
 Use :func:`apply_actor` to call an actor with or without batch-norm in either mode, and the
-``gaussian_*`` functions for log-probabilities, entropy and KL divergence.
+``gaussian_*`` functions for log-probabilities, entropy and KL divergence. Optional
+observation normalisation keeps a :class:`~jaxrl_robot.types.RunningStats`
+(:func:`init_running_stats`, :func:`update_running_stats`, :func:`normalize`).
 """
 
 from __future__ import annotations
@@ -27,6 +29,8 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
+from jaxrl_robot.types import RunningStats
+
 __all__ = [
     "MLP",
     "Critic",
@@ -36,6 +40,9 @@ __all__ = [
     "gaussian_kl",
     "gaussian_log_prob",
     "gaussian_sample",
+    "init_running_stats",
+    "normalize",
+    "update_running_stats",
 ]
 
 _LOG_2PI = jnp.log(2.0 * jnp.pi)
@@ -93,14 +100,16 @@ class GaussianActor(nn.Module):
     bn_axis_name: str | None = None
 
     @nn.compact
-    def __call__(self, obs: jax.Array, train: bool = False) -> tuple[jax.Array, jax.Array]:
+    def __call__(
+        self, obs: jax.Array, train: bool = False, mask: jax.Array | None = None
+    ) -> tuple[jax.Array, jax.Array]:
         x = obs
         if self.batch_norm:
-            x = self._bn(x, train)
+            x = self._bn(x, train, mask)
         for width in self.hidden:
             x = _dense(width, jnp.sqrt(2.0), use_bias=not self.batch_norm)(x)
             if self.batch_norm:
-                x = self._bn(x, train)
+                x = self._bn(x, train, mask)
             x = nn.relu(x)
         mean = jnp.tanh(_dense(self.action_size, 0.01)(x))
         sigma = jnp.broadcast_to(jnp.asarray(self.sigma, jnp.float32), (self.action_size,))
@@ -110,13 +119,15 @@ class GaussianActor(nn.Module):
             log_std = jnp.log(sigma)
         return mean, jnp.broadcast_to(log_std, mean.shape)
 
-    def _bn(self, x: jax.Array, train: bool) -> jax.Array:
+    def _bn(self, x: jax.Array, train: bool, mask: jax.Array | None) -> jax.Array:
+        # mask [B] of the rows whose batch statistics count (rows past a worker's episode end).
+        row_mask = None if mask is None or not train else jnp.asarray(mask, bool)[..., None]
         return nn.BatchNorm(
             use_running_average=not train,
             momentum=self.bn_momentum,
             epsilon=1e-5,
             axis_name=self.bn_axis_name if train else None,
-        )(x)
+        )(x, mask=row_mask)
 
 
 def apply_actor(
@@ -125,6 +136,7 @@ def apply_actor(
     batch_stats: Any,
     obs: jax.Array,
     train: bool = False,
+    mask: jax.Array | None = None,
 ) -> tuple[tuple[jax.Array, jax.Array], Any]:
     """Call ``actor`` in acting (``train=False``) or training mode.
 
@@ -135,6 +147,8 @@ def apply_actor(
       obs: ``[..., D]`` observations (a mini-batch ``[B, D]`` when ``train=True``).
       train: True → normalise with the statistics of ``obs`` and update the moving averages;
         False → normalise with the moving averages (one state is enough).
+      mask: optional ``[B]`` bool/0-1 rows of ``obs`` that count in the batch statistics
+        (training mode only); the other rows are still normalised with them.
     Returns:
       ``((mean, log_std), new_batch_stats)``; ``new_batch_stats is batch_stats`` unless
       batch-norm ran in training mode.
@@ -143,7 +157,8 @@ def apply_actor(
     if batch_stats:
         variables["batch_stats"] = batch_stats
     if train and batch_stats:
-        out, updates = actor.apply(variables, obs, train=True, mutable=["batch_stats"])
+        kwargs = {} if mask is None else {"mask": mask}
+        out, updates = actor.apply(variables, obs, train=True, mutable=["batch_stats"], **kwargs)
         return out, updates["batch_stats"]
     return actor.apply(variables, obs, train=False), batch_stats
 
@@ -174,3 +189,40 @@ def gaussian_kl(mean_p: jax.Array, log_std_p: jax.Array, mean_q: jax.Array, log_
 def gaussian_sample(key: jax.Array, mean: jax.Array, log_std: jax.Array) -> jax.Array:
     """Draw ``a ~ N(mean, exp(log_std)²)``: ``[..., A] -> [..., A]``."""
     return mean + jnp.exp(log_std) * jax.random.normal(key, mean.shape, mean.dtype)
+
+
+def init_running_stats(size: int) -> RunningStats:
+    """Empty statistics for ``[size]`` observations (mean 0, variance 1)."""
+    return RunningStats(
+        count=jnp.asarray(1e-4, jnp.float32), mean=jnp.zeros((size,), jnp.float32), var=jnp.ones((size,), jnp.float32)
+    )
+
+
+def update_running_stats(stats: RunningStats, batch: jax.Array, axis_name: str | None = None) -> RunningStats:
+    """Merge a batch ``[..., D]`` into ``stats`` (Chan et al.'s parallel variance update).
+
+    ``axis_name``: a mapped axis (e.g. the device axis inside ``shard_map``) whose batches are
+    pooled first, so every device ends with the same statistics.
+    """
+    x = batch.reshape(-1, batch.shape[-1]).astype(jnp.float32)
+    n = jnp.asarray(x.shape[0], jnp.float32)
+    total = jnp.sum(x, axis=0)
+    if axis_name is not None:
+        n, total = jax.lax.psum((n, total), axis_name)
+    mean_b = total / n
+    sq = jnp.sum((x - mean_b) ** 2, axis=0)
+    if axis_name is not None:
+        sq = jax.lax.psum(sq, axis_name)
+    var_b = sq / n
+    count = stats.count + n
+    delta = mean_b - stats.mean
+    mean = stats.mean + delta * n / count
+    var = (stats.var * stats.count + var_b * n + delta**2 * stats.count * n / count) / count
+    return RunningStats(count=count, mean=mean, var=var)
+
+
+def normalize(stats: RunningStats | None, obs: jax.Array, clip: float = 10.0) -> jax.Array:
+    """``clip((obs - mean) / std)``; identity when ``stats`` is None. ``[..., D] -> [..., D]``."""
+    if stats is None:
+        return obs
+    return jnp.clip((obs - stats.mean) / jnp.sqrt(stats.var + 1e-8), -clip, clip)

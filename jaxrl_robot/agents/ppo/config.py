@@ -1,0 +1,127 @@
+"""PPO hyper-parameters (defaults: thesis Table 5.2, the arm; K = 4 workers, N = 8, 5 updates on 32)."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+from envs_mjx.config import ConfigError, check_choice, check_range
+
+__all__ = ["OBJECTIVES", "PPOConfig"]
+
+OBJECTIVES = ("clip", "kl")
+
+
+@dataclass(frozen=True)
+class PPOConfig:
+    """Distributed PPO with GAE (thesis §5.1–5.3, Algorithms 7–8).
+
+    Each iteration, ``num_envs`` lanes (the K workers) collect ``unroll_length`` (N) steps with
+    the current policy; then ``actor_updates`` (m) actor steps and ``critic_updates`` (n) critic
+    steps run on mini-batches of ``minibatch_size`` (B) transitions drawn from the K·N.
+    Each mini-batch takes ``B / K`` transitions from every lane (without replacement within
+    the lane), which keeps the result independent of how lanes are spread over devices.
+    """
+
+    total_steps: int = 400_000
+    """Environment steps of the whole run (rounded up to whole chunks of iterations)."""
+    num_envs: int = 4
+    """K: parallel lanes (workers); a multiple of the device count."""
+    unroll_length: int = 8
+    """N: steps each lane collects per iteration."""
+    minibatch_size: int = 32
+    """B: transitions per update; a multiple of num_envs, at most num_envs * unroll_length."""
+    actor_updates: int = 5
+    """m: actor gradient steps per iteration (Algorithm 8, lines 5-10)."""
+    critic_updates: int = 5
+    """n: critic gradient steps per iteration (Algorithm 8, lines 11-16)."""
+    actor_lr: float = 1e-4
+    """Adam learning rate of the actor (α_π)."""
+    critic_lr: float = 5e-4
+    """Adam learning rate of the critic (α_v)."""
+    objective: str = "clip"
+    """'clip': clipped surrogate (Eq. 5.5); 'kl': adaptive KL penalty (Eq. 5.3-5.4)."""
+    clip_eps: float = 0.2
+    """ε of the clipped objective."""
+    kl_target: float = 0.01
+    """D_thre of the adaptive KL penalty: β halves below D_thre/1.5 and doubles above 1.5 D_thre."""
+    kl_beta: float = 1.0
+    """Initial KL penalty coefficient β."""
+    gamma: float = 0.9
+    """Discount factor γ."""
+    gae_lambda: float = 0.95
+    """λ of GAE (Eq. 5.12) and of the critic's λ-returns (Eq. 5.14)."""
+    sigma: tuple[float, ...] = (0.8, 0.8, 0.1)
+    """Policy standard deviation per action dimension (one value is broadcast)."""
+    learn_std: bool = False
+    """Learn a state-independent log-std starting at log(sigma) instead of a fixed σ."""
+    actor_hidden: tuple[int, ...] = (200, 200)
+    """Hidden layer widths of the actor."""
+    critic_hidden: tuple[int, ...] = (200, 200)
+    """Hidden layer widths of the critic."""
+    batch_norm: bool = True
+    """Batch-normalise the actor (batch statistics in training, moving averages when acting)."""
+    bn_momentum: float = 0.99
+    """Decay of the batch-norm moving averages."""
+    normalize_obs: bool = False
+    """Normalise observations by running mean and variance (actor and critic inputs)."""
+    normalize_advantages: bool = True
+    """Standardise advantages over each iteration's K·N transitions."""
+    entropy_coef: float = 0.0
+    """Entropy bonus coefficient in the actor objective."""
+    max_grad_norm: float = 0.0
+    """Clip gradients to this global norm (0: no clipping)."""
+    reward_scale: float = 1.0
+    """Multiply rewards by this before computing returns."""
+    episode_length: int = 0
+    """Time limit in steps (0: the environment's own ``episode_length``)."""
+    schedule: tuple[tuple[float, str, tuple[float, ...]], ...] = ()
+    """Episode-parameter schedule: entries (start fraction of training, name in
+    state.info["params"], value); from each start on, the parameter takes the value (e.g. the
+    RSI window and the early-termination limit of the tracking envs, SPEC §E5)."""
+
+    def validate(self) -> PPOConfig:
+        """Raise ``ConfigError`` naming the first invalid field; return self."""
+        for name in ("total_steps", "num_envs", "unroll_length", "minibatch_size", "actor_updates", "critic_updates"):
+            check_range(name, getattr(self, name), 1)
+            if int(getattr(self, name)) != getattr(self, name):
+                raise ConfigError(f"{name}={getattr(self, name)!r} must be an integer")
+        check_range("actor_lr", self.actor_lr, 0.0, lo_open=True)
+        check_range("critic_lr", self.critic_lr, 0.0, lo_open=True)
+        check_choice("objective", self.objective, OBJECTIVES)
+        check_range("clip_eps", self.clip_eps, 0.0, 1.0, lo_open=True, hi_open=True)
+        check_range("kl_target", self.kl_target, 0.0, lo_open=True)
+        check_range("kl_beta", self.kl_beta, 0.0, lo_open=True)
+        check_range("gamma", self.gamma, 0.0, 1.0)
+        check_range("gae_lambda", self.gae_lambda, 0.0, 1.0)
+        check_range("bn_momentum", self.bn_momentum, 0.0, 1.0, hi_open=True)
+        check_range("entropy_coef", self.entropy_coef, 0.0)
+        check_range("max_grad_norm", self.max_grad_norm, 0.0)
+        check_range("reward_scale", self.reward_scale, 0.0, lo_open=True)
+        check_range("episode_length", self.episode_length, 0)
+        if not self.sigma:
+            raise ConfigError("sigma=() must have at least one value")
+        for i, s in enumerate(self.sigma):
+            check_range(f"sigma[{i}]", s, 0.0, lo_open=True)
+        for name in ("actor_hidden", "critic_hidden"):
+            for i, w in enumerate(getattr(self, name)):
+                check_range(f"{name}[{i}]", w, 1)
+        if self.minibatch_size % self.num_envs:
+            raise ConfigError(
+                f"minibatch_size={self.minibatch_size} must be a multiple of num_envs={self.num_envs} "
+                "(each mini-batch takes the same number of transitions from every lane)"
+            )
+        if self.minibatch_size > self.num_envs * self.unroll_length:
+            raise ConfigError(
+                f"minibatch_size={self.minibatch_size} is out of range; allowed [num_envs, num_envs * unroll_length]"
+                f" = [{self.num_envs}, {self.num_envs * self.unroll_length}]"
+            )
+        for i, entry in enumerate(self.schedule):
+            if len(entry) != 3:
+                raise ConfigError(f"schedule[{i}]={entry!r} must be (start_fraction, name, values)")
+            check_range(f"schedule[{i}].start", entry[0], 0.0, 1.0)
+        return self
+
+    def replace(self, **changes) -> PPOConfig:
+        """A copy with ``changes`` applied (the original is not modified)."""
+        return dataclasses.replace(self, **changes)

@@ -1,0 +1,73 @@
+"""PPO objectives on one mini-batch ``[B]`` (thesis Eq. 5.3-5.5, Algorithm 8)."""
+
+from __future__ import annotations
+
+import chex
+import jax
+import jax.numpy as jnp
+
+__all__ = ["adapt_kl_beta", "clipped_surrogate_loss", "kl_penalty_loss", "value_loss"]
+
+
+def clipped_surrogate_loss(
+    log_prob: jax.Array, old_log_prob: jax.Array, advantages: jax.Array, clip_eps: float
+) -> tuple[jax.Array, jax.Array]:
+    """Negative clipped objective ``-mean(min(r A, clip(r, 1-ε, 1+ε) A))`` (Eq. 5.5).
+
+    Args:
+      log_prob: ``[B]`` ``log π_θ(a|s)`` (differentiated).
+      old_log_prob: ``[B]`` ``log π_θold(a|s)`` (treated as a constant).
+      advantages: ``[B]`` ``A_t`` (constant).
+      clip_eps: ε.
+    Returns:
+      ``(loss [], clip_fraction [])``: the loss to minimise and the share of clipped ratios.
+    """
+    chex.assert_rank((log_prob, old_log_prob, advantages), 1)
+    chex.assert_equal_shape((log_prob, old_log_prob, advantages))
+    ratio = jnp.exp(log_prob - jax.lax.stop_gradient(old_log_prob))
+    advantages = jax.lax.stop_gradient(advantages)
+    clipped = jnp.clip(ratio, 1.0 - clip_eps, 1.0 + clip_eps)
+    objective = jnp.minimum(ratio * advantages, clipped * advantages)
+    clip_fraction = jnp.mean((jnp.abs(ratio - 1.0) > clip_eps).astype(jnp.float32))
+    return -jnp.mean(objective), clip_fraction
+
+
+def kl_penalty_loss(
+    log_prob: jax.Array, old_log_prob: jax.Array, advantages: jax.Array, kl: jax.Array, beta: jax.Array
+) -> jax.Array:
+    """Negative KL-penalised objective ``-mean(r A - β KL(π_old ‖ π_θ))`` (Eq. 5.3).
+
+    Args:
+      log_prob, old_log_prob, advantages: ``[B]`` as in :func:`clipped_surrogate_loss`.
+      kl: ``[B]`` ``KL(π_θold(·|s) ‖ π_θ(·|s))`` per state (differentiated).
+      beta: ``[]`` penalty coefficient β (constant).
+    Returns:
+      ``[]`` loss to minimise.
+    """
+    chex.assert_rank((log_prob, old_log_prob, advantages, kl), 1)
+    chex.assert_equal_shape((log_prob, old_log_prob, advantages, kl))
+    ratio = jnp.exp(log_prob - jax.lax.stop_gradient(old_log_prob))
+    objective = ratio * jax.lax.stop_gradient(advantages) - jax.lax.stop_gradient(beta) * kl
+    return -jnp.mean(objective)
+
+
+def adapt_kl_beta(beta: jax.Array, kl: jax.Array, kl_target: float) -> jax.Array:
+    """The halve/double rule after Eq. 5.4.
+
+    ``β/2`` if ``D < D_thre / 1.5``; ``2β`` if ``D > 1.5 D_thre``; otherwise unchanged.
+
+    Args:
+      beta: ``[]`` current β.
+      kl: ``[]`` D, the mean KL divergence over the sampled transitions (Eq. 5.4).
+      kl_target: D_thre.
+    """
+    chex.assert_rank((beta, kl), 0)
+    beta = jnp.where(kl < kl_target / 1.5, beta / 2.0, beta)
+    return jnp.where(kl > 1.5 * kl_target, beta * 2.0, beta)
+
+
+def value_loss(values: jax.Array, targets: jax.Array) -> jax.Array:
+    """Critic loss ``mean((R_t - V(s_t))²)`` (Algorithm 8, line 14): ``[B], [B] -> []``."""
+    chex.assert_rank((values, targets), 1)
+    chex.assert_equal_shape((values, targets))
+    return jnp.mean((jax.lax.stop_gradient(targets) - values) ** 2)

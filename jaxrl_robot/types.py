@@ -1,0 +1,88 @@
+"""Shared data types: transitions, the trainer interface, running statistics.
+
+``Trainer`` is the contract between an algorithm (``jaxrl_robot.agents.<algo>``) and the
+command-line driver (``train/common.py``): the algorithm supplies pure functions, the
+driver jits them, calls ``update`` chunk after chunk, logs, checkpoints and evaluates.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import jax
+from flax import struct
+
+__all__ = ["Metrics", "Policy", "RunningStats", "Trainer", "Transition"]
+
+Metrics = dict[str, jax.Array]
+"""Scalar metrics of one update chunk (name -> ``[]`` array)."""
+
+Policy = Callable[[jax.Array], jax.Array]
+"""A deterministic policy ``obs [..., D] -> action [..., A]`` in the env's action space [-1, 1]."""
+
+
+class Transition(NamedTuple):
+    """One environment step per lane; leaves are ``[...]`` (``[T, B]`` after a rollout).
+
+    Attributes:
+      obs: ``[..., D]`` observation ``s_t`` the action was chosen from.
+      action: ``[..., A]`` action ``a_t`` as sampled (before the env clips it to [-1, 1]).
+      reward: ``[...]`` reward ``r_t``.
+      termination: ``[...]`` 1.0 where ``s'_t`` is terminal (success or failure): no bootstrap.
+      truncation: ``[...]`` 1.0 where the time limit cut the episode at ``t``: bootstrap from ``V(s'_t)``.
+      next_obs: ``[..., D]`` the true successor ``s'_t`` (the final observation at an episode end,
+        not the next episode's first observation).
+      done: ``[...]`` 1.0 where the episode ended at ``t`` (termination or truncation).
+      metrics: env metrics of the step (final values where ``done``), plus ``episode_return``
+        and ``episode_length`` (totals of the finished episode where ``done``).
+    """
+
+    obs: jax.Array
+    action: jax.Array
+    reward: jax.Array
+    termination: jax.Array
+    truncation: jax.Array
+    next_obs: jax.Array
+    done: jax.Array
+    metrics: dict[str, jax.Array]
+
+
+@struct.dataclass
+class RunningStats:
+    """Running mean and variance of observations (parallel Welford); see ``networks.normalize``.
+
+    Attributes:
+      count: ``[]`` number of samples seen (float, starts at a tiny value to avoid 0/0).
+      mean: ``[D]``.
+      var: ``[D]`` population variance.
+    """
+
+    count: jax.Array
+    mean: jax.Array
+    var: jax.Array
+
+
+class Trainer(NamedTuple):
+    """The "chunked jitted update + train state + metrics" interface used by ``train/common.py``.
+
+    All callables are pure; the caller jits them. ``state`` is any pytree of arrays (a
+    ``flax.struct.dataclass``) holding *everything* a run needs to continue exactly —
+    parameters, optimiser states, normaliser, environment states, RNG key, counters — so
+    that a checkpoint of it is a complete resume point.
+
+    Attributes:
+      init: ``key -> state``.
+      update: ``state -> (state, metrics)``: one chunk of ``iterations_per_update`` training
+        iterations; ``metrics`` are scalars (means over the chunk; episode statistics over the
+        episodes that finished in the chunk, NaN where none did).
+      policy: ``state -> Policy``: the deterministic (mean) action for evaluation.
+      num_updates: chunks in the whole run.
+      env_steps_per_update: environment steps consumed by one ``update``.
+    """
+
+    init: Callable[[jax.Array], Any]
+    update: Callable[[Any], tuple[Any, Metrics]]
+    policy: Callable[[Any], Policy]
+    num_updates: int
+    env_steps_per_update: int
