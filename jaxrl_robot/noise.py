@@ -59,9 +59,9 @@ class Noise(NamedTuple):
 
 
 def _vector(name: str, value: float | Sequence[float], size: int) -> jax.Array:
-    v = jnp.broadcast_to(jnp.asarray(value, jnp.float32), (size,)) if jnp.ndim(value) == 0 else jnp.asarray(
-        value, jnp.float32
-    )
+    v = jnp.asarray(value, jnp.float32)
+    if v.ndim == 0:
+        v = jnp.broadcast_to(v, (size,))
     if v.shape != (size,):
         raise ValueError(f"{name}={value!r} must be a scalar or have {size} elements")
     return v
