@@ -22,6 +22,8 @@ from envs_mjx.config import ConfigError
 
 # name -> "module:Class"; imported lazily so that `names()` costs nothing.
 _REGISTRY: dict[str, str] = {
+    "scara": "envs_mjx.scara:Scara",
+    "unicycle": "envs_mjx.unicycle:Unicycle",
 }
 
 

@@ -1,0 +1,211 @@
+"""Shared machinery of the trajectory-tracking environments (thesis §3.5.2, §5.5; SPEC §E5).
+
+* **Random reference-state initialisation (RSI)** — :func:`rsi_index` draws the start step of an
+  episode uniformly from the window ``[start_lo, start_hi]`` (fractions of the reference).
+* **Early termination** — :func:`early_termination` counts the steps whose position error exceeds
+  a threshold; when the count exceeds ``et_limit`` the episode terminates (``done``, not a
+  truncation), and that step and any later one earn zero reward.
+* **Episode parameters** — ``{"start_lo", "start_hi", "et_limit"}`` live in
+  ``state.info["params"]`` as float32 scalars.  They are traced values, so a trainer moves the
+  piecewise curriculum (whole reference → ¼–½ → first quarter → t = 0, limit 20 → 15 → 10) by
+  writing new values into the state; the wrappers of :mod:`envs_mjx.base` carry them across
+  auto-resets and nothing recompiles.
+* **Test episode** — :func:`rollout` (pure, jittable) runs one episode from ``t = 0`` with a
+  deterministic policy; :func:`test_episode` jit-compiles it and returns the per-axis **sum of
+  |error|** over all steps (Tables 4.3–4.5, 5.4–5.7, 7.2–7.3), the mean per step, the number of
+  steps and the reference and real paths.
+
+A tracking environment provides ``max_steps`` (control steps of the reference), ``axis_names``
+(three tracked axes), ``wrap_axes`` (which axes are angles) and, in ``state.info``, ``ee_pos`` and
+``ref_pos`` (``[3]`` each, on those axes) and the step index ``k``.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from envs_mjx.config import ConfigError
+
+__all__ = [
+    "PARAM_KEYS",
+    "axis_errors",
+    "early_termination",
+    "make_params",
+    "resolve_length",
+    "rollout",
+    "rsi_index",
+    "test_episode",
+    "eval_params",
+    "wrap_angle",
+]
+
+PARAM_KEYS = ("start_lo", "start_hi", "et_limit")
+
+
+def make_params(
+    defaults: Mapping[str, Any], params: Mapping[str, Any] | None = None
+) -> dict[str, jax.Array]:
+    """Episode parameters as float32 arrays: ``defaults`` updated by ``params``.
+
+    Raises ``ValueError`` naming unknown keys and the valid ones.
+    """
+    params = {} if params is None else dict(params)
+    unknown = sorted(set(params) - set(PARAM_KEYS))
+    if unknown:
+        raise ValueError(f"unknown episode parameter(s) {unknown}; valid: {', '.join(PARAM_KEYS)}")
+    merged = {**defaults, **params}
+    return {k: jnp.asarray(merged[k], jnp.float32) for k in PARAM_KEYS}
+
+
+def resolve_length(cfg: Any, default_duration: float) -> dict[str, Any]:
+    """``duration`` and ``max_steps`` of a tracking config: derived from each other, or checked."""
+    dt, duration, max_steps = cfg.dt, cfg.duration, cfg.max_steps
+    if max_steps is None:
+        duration = default_duration if duration is None else duration
+        max_steps = max(1, int(round(duration / dt)))
+    elif duration is None:
+        duration = max_steps * dt
+    elif int(round(duration / dt)) != int(max_steps):
+        raise ConfigError(
+            f"max_steps={max_steps!r} disagrees with duration={duration!r} / dt={dt!r} "
+            f"(= {duration / dt:g} steps); give one of them"
+        )
+    return {"duration": float(duration), "max_steps": int(max_steps)}
+
+
+def eval_params() -> dict[str, jax.Array]:
+    """Parameters of a test episode: start at ``t = 0``, no early termination (limit = +inf)."""
+    return make_params({"start_lo": 0.0, "start_hi": 0.0, "et_limit": math.inf})
+
+
+def rsi_index(key: jax.Array, params: Mapping[str, jax.Array], n_steps: int) -> jax.Array:
+    """Start step ``k0`` drawn uniformly from the window ``[start_lo, start_hi]`` of the reference.
+
+    ``k0 = floor((lo + u (hi − lo)) · n_steps)``, ``u ~ U[0, 1)``, clipped to ``[0, n_steps − 1]`` so
+    that at least one step is left.  ``lo`` and ``hi`` are fractions of the reference (clipped to
+    ``[0, 1]``; reversed bounds are swapped).  ``lo = hi = 0`` gives ``k0 = 0``.
+
+    Returns an int32 scalar.
+    """
+    a = jnp.clip(params["start_lo"], 0.0, 1.0)
+    b = jnp.clip(params["start_hi"], 0.0, 1.0)
+    lo, hi = jnp.minimum(a, b), jnp.maximum(a, b)
+    u = jax.random.uniform(key, (), jnp.float32)
+    k0 = jnp.floor((lo + u * (hi - lo)) * n_steps).astype(jnp.int32)
+    return jnp.clip(k0, 0, n_steps - 1)
+
+
+def early_termination(
+    count: jax.Array, terminated: jax.Array, pos_error: jax.Array, threshold: float, limit: jax.Array
+) -> tuple[jax.Array, jax.Array]:
+    """One step of the early-termination counter (thesis §3.5.2).
+
+    The counter adds 1 for every step whose position error exceeds ``threshold`` (steps need
+    not be consecutive); the episode terminates once the counter exceeds ``limit``, i.e. on the
+    ``limit + 1``-th over-threshold step, and stays terminated.
+
+    Args:
+      count: float32 counter before this step; terminated: float32 0/1 before this step.
+      pos_error: Euclidean position error after this step; limit: float32 (``inf`` disables).
+    Returns:
+      ``(count, terminated)`` after this step.
+    """
+    over = (pos_error > threshold).astype(jnp.float32)
+    count = count + over * (1.0 - terminated)
+    terminated = jnp.maximum(terminated, (count > limit).astype(jnp.float32))
+    return count, terminated
+
+
+def wrap_angle(a: jax.Array) -> jax.Array:
+    """Wrap angles to ``[-π, π)`` (so a reference of 2π − ε against 0 + ε gives an error of −2ε)."""
+    return jnp.mod(a + jnp.pi, 2.0 * jnp.pi) - jnp.pi
+
+
+def axis_errors(ref: jax.Array, real: jax.Array, wrap_axes: tuple[bool, ...]) -> jax.Array:
+    """Signed tracking errors ``ref − real`` per axis, ``[..., 3]``; angle axes wrapped to ``[-π, π)``."""
+    err = ref - real
+    mask = jnp.asarray(wrap_axes, bool)
+    return jnp.where(mask, wrap_angle(err), err)
+
+
+def rollout(env: Any, policy_fn: Callable[[jax.Array], jax.Array], params: Mapping[str, Any] | None = None) -> dict:
+    """One episode from the reference's start with a deterministic policy (pure; jit it).
+
+    Steps the unbatched ``env`` for ``env.max_steps`` control steps under ``lax.scan``; steps after
+    the episode ends (early termination, if ``params`` enables it) are masked out.
+
+    Args:
+      env: a tracking environment (``scara`` or ``unicycle``).
+      policy_fn: ``obs [O] -> action [A]`` in ``[-1, 1]``.
+      params: episode parameters; default :func:`eval_params` (start at ``t = 0``, no early
+        termination).  Given ones are completed with the test defaults.
+    Returns:
+      dict of arrays: ``sum_abs_error [3]``, ``mean_abs_error [3]`` (per step), ``abs_error [N, 3]``
+      (masked steps 0), ``steps`` (int32), ``episode_return``, ``valid [N]`` (bool), ``ref_path
+      [N+1, 3]`` and ``real_path [N+1, 3]`` (row 0 is the start; rows after the end are NaN), where
+      ``N = env.max_steps``.
+    """
+    p = make_params(eval_params(), params)
+    state = env.reset(jax.random.PRNGKey(0), p)
+    wrap = tuple(env.wrap_axes)
+
+    def body(carry, _):
+        st, alive = carry
+        nst = env.step(st, policy_fn(st.obs))
+        err = jnp.abs(axis_errors(nst.info["ref_pos"], nst.info["ee_pos"], wrap))
+        out = (
+            jnp.where(alive, err, 0.0),
+            alive,
+            nst.info["ref_pos"],
+            jnp.where(alive, nst.info["ee_pos"], jnp.nan),
+            jnp.where(alive, nst.reward, 0.0),
+        )
+        return (nst, alive & (nst.done == 0)), out
+
+    (_, _), (abs_err, valid, ref, real, rew) = jax.lax.scan(
+        body, (state, jnp.asarray(True)), None, length=env.max_steps
+    )
+    steps = jnp.sum(valid.astype(jnp.int32))
+    total = jnp.sum(abs_err, axis=0)
+    ref = jnp.where(valid[:, None], ref, jnp.nan)
+    return {
+        "sum_abs_error": total,
+        "mean_abs_error": total / jnp.maximum(steps, 1),
+        "abs_error": abs_err,
+        "steps": steps,
+        "episode_return": jnp.sum(rew),
+        "valid": valid,
+        "ref_path": jnp.concatenate([state.info["ref_pos"][None], ref]),
+        "real_path": jnp.concatenate([state.info["ee_pos"][None], real]),
+    }
+
+
+@functools.lru_cache(maxsize=32)
+def _jitted_rollout(env: Any, policy_fn: Callable) -> Callable:
+    return jax.jit(functools.partial(rollout, env, policy_fn))
+
+
+def test_episode(
+    env: Any, policy_fn: Callable[[jax.Array], jax.Array], params: Mapping[str, Any] | None = None
+) -> dict:
+    """Run :func:`rollout` jitted and return host values for tables and plots.
+
+    The compiled rollout is cached per ``(env, policy_fn)`` object pair.  Inside a jitted training
+    loop call :func:`rollout` directly instead.
+
+    Returns the keys of :func:`rollout` as NumPy arrays (``steps`` an ``int``) plus ``axis_names``
+    (e.g. ``('x', 'y', 'z')`` or ``('x', 'y', 'theta')``).
+    """
+    out = _jitted_rollout(env, policy_fn)(None if params is None else make_params(eval_params(), params))
+    host = {k: np.asarray(v) for k, v in out.items()}
+    host["steps"] = int(host["steps"])
+    host["episode_return"] = float(host["episode_return"])
+    host["axis_names"] = tuple(env.axis_names)
+    return host
