@@ -86,6 +86,7 @@ class RunSpec:
       run_dir: an existing run directory to resume (``None``: start a new run).
       checkpoint_every: chunks between checkpoints (the last chunk is always saved).
       eval_episodes: test episodes for reaching envs.
+      episode_length: step limit of a test episode (0: ``env.episode_length``).
       stop_after_steps: stop (resumably) once this many env steps are done; 0 runs to the end.
       progress: draw a progress bar; ``None`` decides by :func:`use_progress_bar`.
     """
@@ -100,6 +101,7 @@ class RunSpec:
     run_dir: str | None = None
     checkpoint_every: int = 10
     eval_episodes: int = 100
+    episode_length: int = 0
     stop_after_steps: int = 0
     progress: bool | None = None
 
@@ -151,7 +153,14 @@ def is_tracking_env(env: Env) -> bool:
     return hasattr(env, "axis_names") and hasattr(env, "wrap_axes")
 
 
-def evaluate(key: jax.Array, env: Env, policy: Callable, episodes: int, run_dir: str | None = None) -> dict[str, Any]:
+def evaluate(
+    key: jax.Array,
+    env: Env,
+    policy: Callable,
+    episodes: int,
+    run_dir: str | None = None,
+    episode_length: int = 0,
+) -> dict[str, Any]:
     """Evaluate a deterministic policy; draws the tracking figures into ``run_dir`` if given.
 
     Tracking envs: ``envs_mjx.tracking.test_episode`` from ``t = 0`` → per-axis sums of
@@ -171,7 +180,7 @@ def evaluate(key: jax.Array, env: Env, policy: Callable, episodes: int, run_dir:
             ok = np.isfinite(real[:, 0])
             plot_tracking(ref[ok], real[ok], result["abs_error"][: result["steps"]], run_dir, axes)
         return {"kind": "tracking", **summary}
-    run_eps = jax.jit(lambda k: run_test_episodes(k, env, policy, episodes))
+    run_eps = jax.jit(lambda k: run_test_episodes(k, env, policy, episodes, episode_length or None))
     summary = summarize_episodes(jax.device_get(run_eps(key)))
     return {"kind": "episodes", **summary}
 
@@ -313,7 +322,9 @@ def run(spec: RunSpec) -> dict[str, Any]:
         return result
     eval_key = jax.random.fold_in(jax.random.PRNGKey(spec.seed), EVAL_KEY_OFFSET)
     t_eval = time.perf_counter()
-    summary = evaluate(eval_key, spec.env, trainer.policy(state), spec.eval_episodes, run_dir)
+    summary = evaluate(
+        eval_key, spec.env, trainer.policy(state), spec.eval_episodes, run_dir, spec.episode_length
+    )
     result["eval_s"] = time.perf_counter() - t_eval
     result["wall_s"] = wall_before + time.perf_counter() - t0
     result["eval"] = summary

@@ -1,0 +1,212 @@
+"""PPO: losses and the β rule by hand, config errors, and the training function on a toy env."""
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from brax.envs.base import State
+
+from envs_mjx.base import RobotEnv, sanitize_action
+from envs_mjx.config import ConfigError
+from jaxrl_robot.agents.ppo import (
+    PPOConfig,
+    adapt_kl_beta,
+    clipped_surrogate_loss,
+    kl_penalty_loss,
+    make_train,
+    make_trainer,
+    value_loss,
+)
+
+# ---------------------------------------------------------------------------------------------
+# losses, hand-computed
+
+
+def test_clipped_surrogate_hand_computed_value_and_gradient():
+    old = jnp.zeros(3)
+    logp = jnp.log(jnp.array([1.5, 0.5, 1.1]))  # ratios 1.5, 0.5, 1.1
+    adv = jnp.array([1.0, -1.0, 2.0])
+    loss, clip_frac = clipped_surrogate_loss(logp, old, adv, 0.2)
+    # min(1.5*1, 1.2*1) = 1.2; min(0.5*-1, 0.8*-1) = -0.8; min(2.2, 2.2) = 2.2
+    np.testing.assert_allclose(loss, -(1.2 - 0.8 + 2.2) / 3, rtol=1e-6)
+    np.testing.assert_allclose(clip_frac, 2 / 3, rtol=1e-6)
+    # clipped terms carry no gradient; the unclipped one has d/dlogp = -r A / B
+    grad = jax.grad(lambda lp: clipped_surrogate_loss(lp, old, adv, 0.2)[0])(logp)
+    np.testing.assert_allclose(grad, [0.0, 0.0, -2.2 / 3], atol=1e-6)
+
+
+def test_kl_penalty_loss_hand_computed():
+    old = jnp.zeros(3)
+    logp = jnp.log(jnp.array([1.5, 0.5, 1.1]))
+    adv = jnp.array([1.0, -1.0, 2.0])
+    kl = jnp.array([0.1, 0.2, 0.3])
+    loss = kl_penalty_loss(logp, old, adv, kl, jnp.asarray(2.0))
+    # r A - β KL = [1.5 - 0.2, -0.5 - 0.4, 2.2 - 0.6]
+    np.testing.assert_allclose(loss, -(1.3 - 0.9 + 1.6) / 3, rtol=1e-6)
+    g_kl = jax.grad(lambda k: kl_penalty_loss(logp, old, adv, k, jnp.asarray(2.0)))(kl)
+    np.testing.assert_allclose(g_kl, [2 / 3] * 3, rtol=1e-6)
+
+
+def test_beta_halves_and_doubles():
+    beta = jnp.asarray(1.0)
+    target = 0.01
+    assert float(adapt_kl_beta(beta, jnp.asarray(0.005), target)) == 0.5  # D < D_thre / 1.5
+    assert float(adapt_kl_beta(beta, jnp.asarray(0.02), target)) == 2.0  # D > 1.5 D_thre
+    assert float(adapt_kl_beta(beta, jnp.asarray(0.01), target)) == 1.0
+    assert float(adapt_kl_beta(beta, jnp.asarray(0.015), target)) == 1.0  # the bounds themselves keep β
+    assert float(adapt_kl_beta(beta, jnp.asarray(0.01 / 1.5), target)) == 1.0
+
+
+def test_value_loss_hand_computed():
+    np.testing.assert_allclose(value_loss(jnp.array([1.0, 2.0]), jnp.array([0.0, 4.0])), (1 + 4) / 2)
+
+
+def test_config_errors_name_the_field():
+    with pytest.raises(ConfigError, match="objective='ppo'.*'clip', 'kl'"):
+        PPOConfig(objective="ppo").validate()
+    with pytest.raises(ConfigError, match=r"clip_eps=1.5 is out of range"):
+        PPOConfig(clip_eps=1.5).validate()
+    with pytest.raises(ConfigError, match="minibatch_size=30 must be a multiple of num_envs=4"):
+        PPOConfig(minibatch_size=30).validate()
+    with pytest.raises(ConfigError, match=r"minibatch_size=64 is out of range"):
+        PPOConfig(minibatch_size=64).validate()
+
+
+# ---------------------------------------------------------------------------------------------
+# the training function on a toy env
+
+
+@dataclasses.dataclass(frozen=True)
+class LineConfig:
+    max_steps: int = 8
+
+
+class Line(RobotEnv):
+    """1-D point that should move to 0; episode parameter ``offset`` shifts the start."""
+
+    name = "line"
+    Config = LineConfig
+    observation_size = 2
+    action_size = 1
+
+    @property
+    def action_scale(self):
+        return jnp.array([0.3])
+
+    def default_params(self):
+        return {"offset": jnp.zeros(())}
+
+    def reset(self, rng, params=None):
+        params = self.default_params() if params is None else params
+        x = jax.random.uniform(rng, (1,), minval=-1.0, maxval=1.0) + params["offset"]
+        z = jnp.zeros(())
+        obs = jnp.concatenate([x, jnp.abs(x)])
+        return State(x, obs, z, z, {"success": z}, {"params": params})
+
+    def step(self, state, action):
+        a, _ = sanitize_action(action)
+        x = state.pipeline_state + self.action_scale * a
+        success = (jnp.abs(x[0]) < 0.1).astype(jnp.float32)
+        obs = jnp.concatenate([x, jnp.abs(x)])
+        reward = jnp.abs(state.pipeline_state[0]) - jnp.abs(x[0])
+        return state.replace(pipeline_state=x, obs=obs, reward=reward, done=success, metrics={"success": success})
+
+
+TOY = PPOConfig(
+    total_steps=4 * 4 * 8,
+    num_envs=4,
+    unroll_length=8,
+    minibatch_size=16,
+    actor_updates=2,
+    critic_updates=2,
+    sigma=(0.5,),
+    actor_hidden=(16,),
+    critic_hidden=(16,),
+    batch_norm=True,
+    normalize_obs=True,
+    objective="kl",
+    kl_target=1e-3,
+    schedule=((0.0, "offset", (0.0,)), (0.5, "offset", (5.0,))),
+)
+
+
+@pytest.fixture(scope="module")
+def toy():
+    trainer = make_trainer(TOY, Line(), iterations_per_update=1)
+    return trainer, jax.jit(trainer.init), jax.jit(trainer.update)
+
+
+def test_update_runs_without_recompiling_and_reports_metrics(toy):
+    trainer, init, update = toy
+    assert trainer.num_updates == 4 and trainer.env_steps_per_update == 32
+    state = init(jax.random.PRNGKey(0))
+    state, m1 = update(state)
+    state, m2 = update(state)
+    assert update._cache_size() == 1
+    for k in ("actor_loss", "critic_loss", "kl", "kl_beta", "entropy", "episodes", "success", "episode_return"):
+        assert k in m2
+    assert int(state.iteration) == 2
+    assert np.isfinite(float(m2["critic_loss"]))
+
+
+def test_kl_beta_follows_the_halve_double_rule_in_training(toy):
+    _, init, update = toy
+    state = init(jax.random.PRNGKey(1))
+    beta = float(state.kl_beta)
+    for _ in range(3):
+        state, m = update(state)
+        expected = float(adapt_kl_beta(jnp.asarray(beta), m["kl"], TOY.kl_target))
+        assert math.isclose(float(m["kl_beta"]), expected, rel_tol=1e-6)
+        assert float(state.kl_beta) == float(m["kl_beta"])
+        beta = expected
+
+
+def test_schedule_writes_episode_parameters_by_progress(toy):
+    _, init, update = toy
+    state = init(jax.random.PRNGKey(2))
+    offsets = []
+    for _ in range(4):
+        state, _ = update(state)
+        offsets.append(np.asarray(state.env_state.info["params"]["offset"]))
+    # iterations 0 and 1 run at progress 0 and 0.25; iteration 2 starts at 0.5 → offset 5
+    np.testing.assert_array_equal(offsets[0], 0.0)
+    np.testing.assert_array_equal(offsets[1], 0.0)
+    np.testing.assert_array_equal(offsets[2], 5.0)
+    np.testing.assert_array_equal(offsets[3], 5.0)
+
+
+def test_schedule_rejects_unknown_parameter():
+    bad = TOY.replace(schedule=((0.0, "window", (1.0,)),))
+    with pytest.raises(ConfigError, match="unknown episode parameter 'window'.*offset"):
+        make_trainer(bad, Line())
+
+
+def test_make_train_vmaps_over_seeds_and_matches_chunked_runs(toy):
+    _, init, update = toy
+    keys = jax.random.split(jax.random.PRNGKey(3), 2)
+    states, metrics = jax.jit(jax.vmap(make_train(TOY, Line())))(keys)
+    assert metrics["critic_loss"].shape == (2, 4)
+    state = init(keys[1])
+    for _ in range(4):
+        state, _ = update(state)
+    jax.tree.map(
+        lambda a, b: np.testing.assert_allclose(a[1], b, rtol=1e-3, atol=1e-4),
+        (states.actor_params, states.critic_params),
+        (state.actor_params, state.critic_params),
+    )
+    kernels = states.actor_params["Dense_0"]["kernel"]
+    assert not np.allclose(kernels[0], kernels[1])
+
+
+def test_accepts_a_plain_brax_env():
+    from brax import envs as brax_envs
+
+    env = brax_envs.get_environment("fast")
+    cfg = PPOConfig(total_steps=32, num_envs=4, unroll_length=8, minibatch_size=16, sigma=(0.5,), actor_hidden=(8,),
+                    critic_hidden=(8,), batch_norm=False, episode_length=20)
+    state, metrics = jax.jit(make_train(cfg, env))(jax.random.PRNGKey(0))
+    assert np.isfinite(np.asarray(metrics["critic_loss"])).all()
+    assert state.env_state.obs.shape == (4, env.observation_size)

@@ -1,0 +1,111 @@
+"""Hyper-parameter presets per (algorithm, environment).
+
+PPO presets:
+
+* ``thesis`` — the thesis's setting: K = 4 workers; arm: N = 8, 5 actor and 5 critic updates on
+  32 transitions, 2000 episodes' worth of steps (Table 5.2, §5.4); mobile robot: N = 16, 8 updates
+  on 32 of 64, 3000 episodes, piecewise RSI + shrinking early-termination limit (Table 5.3, §5.5).
+* ``cpu`` — a few dozen lanes, sized for a 2-core CPU (the default without an accelerator).
+* ``fast`` — thousands of lanes for one GPU (the default with an accelerator).
+* ``auto`` — ``fast`` on a GPU/TPU backend, else ``cpu``.
+
+Environment settings (reward, physics mode, …) stay apart from algorithm settings: a preset
+returns a :class:`PPOConfig` and env overrides separately.
+"""
+
+from __future__ import annotations
+
+import jax
+
+from jaxrl_robot.agents.ppo import PPOConfig
+
+__all__ = ["PPO_PRESETS", "resolve_preset", "ppo_preset", "tracking_schedule"]
+
+PPO_PRESETS = ("auto", "thesis", "cpu", "fast")
+
+
+def resolve_preset(name: str) -> str:
+    """``auto`` → ``fast`` on an accelerator backend, else ``cpu``; other names unchanged (validated)."""
+    if name not in PPO_PRESETS:
+        raise ValueError(f"unknown preset {name!r}; valid presets: {', '.join(PPO_PRESETS)}")
+    if name == "auto":
+        return "fast" if jax.default_backend() in ("gpu", "cuda", "rocm", "tpu") else "cpu"
+    return name
+
+
+def tracking_schedule(rsi_end: float = 2 / 3, narrow_end: float = 5 / 6) -> tuple:
+    """Thesis §5.5 curriculum as a PPO ``schedule`` for the tracking envs' episode parameters.
+
+    Until ``rsi_end`` of training: start anywhere on the reference, early-termination limit 20;
+    then from ¼-½ of the reference, limit 15; from ``narrow_end`` on: from the first quarter,
+    limit 10 (episodes 0-2000, 2000-2500, 2500-3000 of 3000).
+    """
+    stages = ((0.0, 0.0, 1.0, 20.0), (rsi_end, 0.25, 0.5, 15.0), (narrow_end, 0.0, 0.25, 10.0))
+    out = []
+    for start, lo, hi, limit in stages:
+        out += [(start, "start_lo", (lo,)), (start, "start_hi", (hi,)), (start, "et_limit", (limit,))]
+    return tuple(out)
+
+
+def _family(env_name: str) -> str:
+    base = env_name.split(":")[-1]
+    if base == "arm7":
+        return "arm"
+    if base in ("unicycle", "scara"):
+        return "tracking"
+    return "other"
+
+
+def ppo_preset(name: str, env_name: str, episode_length: int, action_size: int) -> tuple[PPOConfig, dict]:
+    """``(PPOConfig, env overrides)`` of preset ``name`` for ``env_name``.
+
+    Args:
+      name: one of :data:`PPO_PRESETS`.
+      env_name: registry name (``arm7``, ``unicycle``, ``scara``) or ``brax:<name>``.
+      episode_length: the env's time limit (sizes the thesis budgets given in episodes).
+      action_size: the env's action dimension (sizes σ for envs without a thesis value).
+    """
+    name = resolve_preset(name)
+    family = _family(env_name)
+    env_overrides: dict = {}
+    if family == "arm":
+        # Table 5.2 and §5.4: 2 x 200 nets, batch-norm actor, σ = [0.8, 0.8, 0.1].
+        base = PPOConfig(
+            actor_lr=1e-4, critic_lr=5e-4, clip_eps=0.2, gamma=0.9, gae_lambda=0.95, sigma=(0.8, 0.8, 0.1),
+            actor_hidden=(200, 200), critic_hidden=(200, 200), batch_norm=True,
+        )
+        presets = {
+            "thesis": dict(num_envs=4, unroll_length=8, minibatch_size=32, actor_updates=5, critic_updates=5,
+                           total_steps=2000 * episode_length),
+            "cpu": dict(num_envs=32, unroll_length=16, minibatch_size=256, actor_updates=8, critic_updates=8,
+                        actor_lr=3e-4, critic_lr=1e-3, total_steps=600_000),
+            "fast": dict(num_envs=4096, unroll_length=16, minibatch_size=16384, actor_updates=4, critic_updates=4,
+                         actor_lr=1e-3, critic_lr=1e-3, total_steps=20_000_000),
+        }
+    elif family == "tracking":
+        # Table 5.3 and §5.5: 256-unit nets, σ = [0.1, 0.01] (unicycle), RSI + early termination.
+        sigma = (0.1, 0.01) if env_name.endswith("unicycle") else (0.1,) * action_size
+        base = PPOConfig(
+            actor_lr=1e-4, critic_lr=5e-4, clip_eps=0.2, gamma=0.9, gae_lambda=0.95, sigma=sigma,
+            actor_hidden=(256, 256), critic_hidden=(256, 256), batch_norm=False, schedule=tracking_schedule(),
+        )
+        presets = {
+            "thesis": dict(num_envs=4, unroll_length=16, minibatch_size=32, actor_updates=8, critic_updates=8,
+                           total_steps=3000 * episode_length),
+            "cpu": dict(num_envs=32, unroll_length=16, minibatch_size=256, actor_updates=8, critic_updates=8,
+                        actor_lr=3e-4, critic_lr=1e-3, total_steps=1_000_000),
+            "fast": dict(num_envs=4096, unroll_length=16, minibatch_size=16384, actor_updates=4, critic_updates=4,
+                         actor_lr=1e-3, critic_lr=1e-3, total_steps=20_000_000),
+        }
+    else:
+        base = PPOConfig(sigma=(0.5,) * action_size, actor_hidden=(64, 64), critic_hidden=(64, 64), batch_norm=False,
+                         gamma=0.99, normalize_obs=True, actor_lr=3e-4, critic_lr=3e-4)
+        presets = {
+            "thesis": dict(num_envs=4, unroll_length=8, minibatch_size=32, actor_updates=5, critic_updates=5,
+                           total_steps=200_000),
+            "cpu": dict(num_envs=32, unroll_length=16, minibatch_size=256, actor_updates=8, critic_updates=8,
+                        total_steps=500_000),
+            "fast": dict(num_envs=2048, unroll_length=16, minibatch_size=8192, actor_updates=4, critic_updates=4,
+                         total_steps=10_000_000),
+        }
+    return base.replace(**presets[name]), env_overrides
