@@ -60,10 +60,10 @@ class Noise(NamedTuple):
 
 def _vector(name: str, value: float | Sequence[float], size: int) -> jax.Array:
     v = jnp.asarray(value, jnp.float32)
-    if v.ndim == 0:
-        v = jnp.broadcast_to(v, (size,))
+    if v.ndim == 0 or v.shape == (1,):
+        v = jnp.broadcast_to(v.reshape(()), (size,))
     if v.shape != (size,):
-        raise ValueError(f"{name}={value!r} must be a scalar or have {size} elements")
+        raise ValueError(f"{name}={value!r} must be a scalar, one value or {size} values")
     return v
 
 

@@ -58,7 +58,7 @@ def test_table_6_1_reading_and_errors():
     np.testing.assert_allclose(noise.init().x, [0.0, 0.5, -0.1])  # steering mean 0, not 0.8
     with pytest.raises(ValueError, match="reversion=2.5 is out of range"):
         make_ou_noise(2, reversion=2.5)
-    with pytest.raises(ValueError, match="mean=.*must be a scalar or have 3 elements"):
+    with pytest.raises(ValueError, match="mean=.*must be a scalar, one value or 3 values"):
         make_ou_noise(3, mean=[0.0, 1.0])
     with pytest.raises(ValueError, match="noise='pink' is not valid; choose one of 'ou', 'gaussian'"):
         make_noise("pink", 2)

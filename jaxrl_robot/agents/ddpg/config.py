@@ -1,0 +1,148 @@
+"""DDPG hyper-parameters (defaults: thesis Table 3.2, the arm with HER)."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+from envs_mjx.config import ConfigError, check_choice, check_range
+from jaxrl_robot.agents.ddpg.networks import OUTPUTS
+from jaxrl_robot.replay.her import STRATEGIES
+
+__all__ = ["NOISES", "SCHEDULES", "DDPGConfig"]
+
+SCHEDULES = ("episodes", "steps")
+NOISES = ("gaussian", "ou")
+
+
+@dataclass(frozen=True)
+class DDPGConfig:
+    """DDPG (Algorithm 1) with optional prioritised replay (§3.2) and hindsight relabelling (§3.3).
+
+    Two schedules:
+
+    * ``"episodes"`` (thesis §3.4.2, Tables 3.1–3.2): ``epochs`` × ``cycles_per_epoch``
+      cycles; each cycle runs ``num_envs`` whole episodes as parallel lanes (16 in the
+      thesis), stores their transitions (relabelled by HER) and then makes
+      ``updates_per_cycle`` (40) updates on mini-batches of ``batch_size`` (128).
+    * ``"steps"`` (thesis §3.5, Table 3.3): lanes step continuously with auto-reset; after
+      every ``unroll_length`` steps of all lanes, ``updates_per_iteration`` updates, once
+      ``learning_starts`` transitions are stored (5000 in the thesis).
+    """
+
+    schedule: str = "episodes"
+    """'episodes' (cycles of whole episodes, then updates) or 'steps' (updates every few steps)."""
+    epochs: int = 200
+    """'episodes' schedule: number of epochs (200 for the sparse-reward rows, 100 for the shaped)."""
+    cycles_per_epoch: int = 50
+    """'episodes' schedule: cycles per epoch."""
+    updates_per_cycle: int = 40
+    """'episodes' schedule: gradient updates after each cycle."""
+    total_steps: int = 200_000
+    """'steps' schedule: environment steps of the run (all lanes together)."""
+    unroll_length: int = 1
+    """'steps' schedule: steps of every lane between update phases."""
+    updates_per_iteration: int = 1
+    """'steps' schedule: gradient updates after each unroll."""
+    learning_starts: int = 0
+    """No updates until this many transitions are stored (at least one batch is always required)."""
+    num_envs: int = 16
+    """Parallel lanes: episodes per cycle ('episodes') or continuously running envs ('steps')."""
+    episode_length: int = 0
+    """Time limit in steps (0: the environment's own ``episode_length``)."""
+    batch_size: int = 128
+    """Mini-batch size b_n."""
+    buffer_size: int = 1_000_000
+    """Replay memory capacity C."""
+    actor_lr: float = 1e-3
+    """Adam learning rate of the actor α_μ."""
+    critic_lr: float = 1e-3
+    """Adam learning rate of the critic α_Q."""
+    tau: float = 0.05
+    """Soft replacement coefficient ε of the target networks."""
+    gamma: float = 0.9
+    """Discount factor γ."""
+    per: bool = False
+    """Prioritised experience replay (sum-tree, Eq. 3.9-3.10) instead of uniform sampling."""
+    alpha: float = 0.6
+    """PER priority exponent α."""
+    beta0: float = 0.4
+    """PER initial importance-sampling exponent β0."""
+    beta_increment: float = 0.001
+    """PER increment of β per update (up to 1)."""
+    her: str = "none"
+    """Hindsight relabelling strategy: 'none', 'final', 'future' or 'random' (episodes schedule only)."""
+    her_k: int = 2
+    """Additional goals per transition for 'future' and 'random'."""
+    noise: str = "gaussian"
+    """Exploration noise: 'gaussian' or 'ou' (Ornstein-Uhlenbeck, Eq. 3.8)."""
+    noise_scale: tuple[float, ...] = (0.2,)
+    """σ of the Gaussian noise, or σ2 of the OU process (one value or one per action)."""
+    noise_mean: tuple[float, ...] = (0.0,)
+    """Mean of the noise (η of the OU process)."""
+    noise_reversion: tuple[float, ...] = (0.15,)
+    """σ1 of the OU process (reversion rate)."""
+    actor_hidden: tuple[int, ...] = (100, 100, 100)
+    """Hidden widths of the actor (arm: 3 x 100; tracking: 300-100)."""
+    critic_hidden: tuple[int, ...] = (100, 100, 100)
+    """Hidden widths of the critic."""
+    actor_output: str = "tanh"
+    """Actor output activation: 'tanh' (actions in [-1, 1]) or 'sigmoid' ([0, 1])."""
+    reward_scale: float = 1.0
+    """Multiply rewards by this in the critic target."""
+    target_clip: tuple[float, ...] = ()
+    """(lo, hi): clip critic targets to the reachable return range, e.g. (-10, 0) for the sparse
+    reward with γ = 0.9 (as in the HER reference implementation); empty: no clipping."""
+    max_grad_norm: float = 0.0
+    """Clip gradients to this global norm (0: no clipping)."""
+
+    @property
+    def iterations(self) -> int:
+        """Training iterations: cycles ('episodes') or unroll + update phases ('steps')."""
+        if self.schedule == "episodes":
+            return self.epochs * self.cycles_per_epoch
+        return max(1, -(-self.total_steps // (self.num_envs * self.unroll_length)))
+
+    def validate(self) -> DDPGConfig:
+        """Raise ``ConfigError`` naming the first invalid field; return self."""
+        check_choice("schedule", self.schedule, SCHEDULES)
+        for name in ("epochs", "cycles_per_epoch", "updates_per_cycle", "total_steps", "unroll_length",
+                     "updates_per_iteration", "num_envs", "batch_size", "buffer_size"):
+            check_range(name, getattr(self, name), 1)
+            if int(getattr(self, name)) != getattr(self, name):
+                raise ConfigError(f"{name}={getattr(self, name)!r} must be an integer")
+        check_range("learning_starts", self.learning_starts, 0)
+        check_range("episode_length", self.episode_length, 0)
+        check_range("actor_lr", self.actor_lr, 0.0, lo_open=True)
+        check_range("critic_lr", self.critic_lr, 0.0, lo_open=True)
+        check_range("tau", self.tau, 0.0, 1.0, lo_open=True)
+        check_range("gamma", self.gamma, 0.0, 1.0)
+        check_range("alpha", self.alpha, 0.0, 1.0)
+        check_range("beta0", self.beta0, 0.0, 1.0)
+        check_range("beta_increment", self.beta_increment, 0.0)
+        check_choice("her", self.her, STRATEGIES)
+        if self.her in ("future", "random"):
+            check_range("her_k", self.her_k, 1)
+        if self.her != "none" and self.schedule != "episodes":
+            raise ConfigError(f"her={self.her!r} needs whole episodes: use schedule='episodes'")
+        check_choice("noise", self.noise, NOISES)
+        check_choice("actor_output", self.actor_output, OUTPUTS)
+        for name in ("noise_scale", "noise_mean", "noise_reversion"):
+            if not getattr(self, name):
+                raise ConfigError(f"{name}=() must have at least one value")
+        for i, v in enumerate(self.noise_scale):
+            check_range(f"noise_scale[{i}]", v, 0.0)
+        for i, v in enumerate(self.noise_reversion):
+            check_range(f"noise_reversion[{i}]", v, 0.0, 2.0, lo_open=True, hi_open=True)
+        for name in ("actor_hidden", "critic_hidden"):
+            for i, w in enumerate(getattr(self, name)):
+                check_range(f"{name}[{i}]", w, 1)
+        check_range("reward_scale", self.reward_scale, 0.0, lo_open=True)
+        if self.target_clip and (len(self.target_clip) != 2 or self.target_clip[0] > self.target_clip[1]):
+            raise ConfigError(f"target_clip={self.target_clip!r} must be () or (lo, hi) with lo <= hi")
+        check_range("max_grad_norm", self.max_grad_norm, 0.0)
+        return self
+
+    def replace(self, **changes) -> DDPGConfig:
+        """A copy with ``changes`` applied (the original is not modified)."""
+        return dataclasses.replace(self, **changes)

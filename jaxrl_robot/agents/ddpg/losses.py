@@ -1,0 +1,59 @@
+"""DDPG losses and target updates (thesis §3.1, Algorithm 1, Eq. 3.4–3.6).
+
+Functions take mini-batch arrays ``[N]`` and are written for one mini-batch; network calls
+are passed in as closures so the losses stay independent of the architecture.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import chex
+import jax
+import jax.numpy as jnp
+import optax
+
+__all__ = ["actor_loss", "critic_loss", "soft_update", "td_target"]
+
+
+def td_target(reward: jax.Array, terminated: jax.Array, next_q: jax.Array, gamma: float) -> jax.Array:
+    """Eq. 3.5 with termination: ``y = r + γ (1 − d) Q'(s', μ'(s'))``: ``[N] -> [N]``.
+
+    ``d`` is 1 only where ``s'`` is terminal (success or failure); a time-limit truncation
+    keeps ``d = 0`` and bootstraps.  The target carries no gradient.
+    """
+    chex.assert_rank([reward, terminated, next_q], 1)
+    chex.assert_equal_shape([reward, terminated, next_q])
+    return jax.lax.stop_gradient(reward + gamma * (1.0 - terminated) * next_q)
+
+
+def critic_loss(q: jax.Array, target: jax.Array, weights: jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
+    """Eq. 3.4: ``L = mean_i w_i (Q_i − y_i)²``, with importance weights ``w`` under PER (Eq. 3.10).
+
+    Args:
+      q: ``[N]`` critic values ``Q(s, a)``.
+      target: ``[N]`` targets ``y`` (:func:`td_target`).
+      weights: optional ``[N]`` importance weights (1 without PER).
+    Returns:
+      ``(loss [], td_error [N])`` with ``td_error = y − Q`` (for the new priorities).
+    """
+    chex.assert_rank([q, target], 1)
+    chex.assert_equal_shape([q, target])
+    td = target - q
+    sq = td**2
+    if weights is not None:
+        chex.assert_equal_shape([q, weights])
+        sq = weights * sq
+    return jnp.mean(sq), td
+
+
+def actor_loss(q_of_policy: jax.Array) -> jax.Array:
+    """Eq. 3.6 as a loss: ``−mean_i Q(s_i, μ(s_i))``; its gradient is ``−∇_a Q ∇_θ μ`` averaged."""
+    chex.assert_rank(q_of_policy, 1)
+    return -jnp.mean(q_of_policy)
+
+
+def soft_update(target: Any, online: Any, tau: float) -> Any:
+    """``θ' ← ε θ + (1 − ε) θ'`` for every leaf (Algorithm 1, lines 16–17)."""
+    return optax.incremental_update(online, target, tau)
+

@@ -1,0 +1,389 @@
+"""DDPG with prioritised and hindsight replay as a pure, jit-compiled training function.
+
+>>> trainer = make_trainer(DDPGConfig(her="future", her_k=2), env)   # any unbatched brax Env
+>>> state = jax.jit(trainer.init)(key)
+>>> state, metrics = jax.jit(trainer.update, donate_argnums=0)(state)   # one chunk (an epoch)
+>>> train = make_train(config, env)                                  # or the whole run
+>>> state, metrics = jax.jit(train)(key)
+
+One iteration of the ``"episodes"`` schedule (thesis §3.4.2, Algorithms 1–2): ``num_envs``
+lanes each run one whole episode with ``a = μ(s) + noise`` (Eq. 3.7); every transition is
+stored with its real goal and, with HER, again with each additional goal and a recomputed
+reward; then ``updates_per_cycle`` updates.  The ``"steps"`` schedule (§3.5, Table 3.3)
+steps auto-resetting lanes continuously and updates after every ``unroll_length`` steps.
+
+One update (Algorithm 1, lines 9–17): sample a mini-batch (uniformly, or prioritised with
+importance weights w); critic step on ``mean w (Q(s, a) − y)²`` with
+``y = r + γ (1 − d) Q'(s', μ'(s'))`` where ``d`` marks termination only (a time-limit
+truncation bootstraps); actor step on ``−mean Q(s, μ(s))``; soft target updates with ε;
+with PER, new priorities ``|y − Q| + ε`` and β annealing.
+
+The replay buffer lives in the training state on the device, so a checkpoint of the state
+resumes a run exactly.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import optax
+from brax.envs.base import Env, State
+from flax import struct
+
+from envs_mjx.base import EpisodeWrapper, wrap_for_training
+from envs_mjx.config import ConfigError
+from jaxrl_robot.agents.ddpg.config import DDPGConfig
+from jaxrl_robot.agents.ddpg.losses import actor_loss, critic_loss, soft_update, td_target
+from jaxrl_robot.agents.ddpg.networks import DDPGActor, DDPGCritic
+from jaxrl_robot.noise import Noise, NoiseState, make_noise
+from jaxrl_robot.replay import (
+    GoalEpisode,
+    Transition,
+    make_her,
+    make_prioritized_replay,
+    make_uniform_replay,
+)
+from jaxrl_robot.types import Metrics, Policy, Trainer
+
+__all__ = ["GOAL_API", "DDPGState", "make_networks", "make_noise_for", "make_train", "make_trainer"]
+
+GOAL_API = ("achieved_goal", "desired_goal", "compute_reward", "sample_goal", "in_feasible_region", "obs_from")
+
+
+@struct.dataclass
+class DDPGState:
+    """Everything a DDPG run needs to continue exactly.
+
+    Attributes:
+      actor_params, critic_params: online network parameters θ^μ, θ^Q.
+      target_actor_params, target_critic_params: target parameters θ^μ', θ^Q'.
+      actor_opt, critic_opt: Adam states.
+      replay: uniform or prioritised replay state (stored transitions, sum-tree, β).
+      env_state: ``State [B]`` of the lanes ('steps' schedule; the last cycle's for 'episodes').
+      noise_state: ``NoiseState [B, A]`` of every lane.
+      key: PRNG key of the run.
+      iteration: ``[] int32`` iterations (cycles or unroll phases) done.
+      updates: ``[] int32`` gradient updates done.
+    """
+
+    actor_params: Any
+    critic_params: Any
+    target_actor_params: Any
+    target_critic_params: Any
+    actor_opt: Any
+    critic_opt: Any
+    replay: Any
+    env_state: State
+    noise_state: NoiseState
+    key: jax.Array
+    iteration: jax.Array
+    updates: jax.Array
+
+
+def make_networks(config: DDPGConfig, action_size: int) -> tuple[DDPGActor, DDPGCritic]:
+    """Actor and critic of the configured widths (SPEC §A1)."""
+    return (
+        DDPGActor(action_size=action_size, hidden=tuple(config.actor_hidden), output=config.actor_output),
+        DDPGCritic(hidden=tuple(config.critic_hidden)),
+    )
+
+
+def make_noise_for(config: DDPGConfig, action_size: int) -> Noise:
+    """The configured exploration noise (``config.noise``) for ``action_size`` dimensions."""
+    if config.noise == "ou":
+        return make_noise("ou", action_size, mean=config.noise_mean, reversion=config.noise_reversion,
+                          scale=config.noise_scale)
+    return make_noise("gaussian", action_size, scale=config.noise_scale, mean=config.noise_mean)
+
+
+def _optimizer(lr: float, max_grad_norm: float) -> optax.GradientTransformation:
+    adam = optax.adam(lr)
+    return optax.chain(optax.clip_by_global_norm(max_grad_norm), adam) if max_grad_norm > 0 else adam
+
+
+def _tree_where(cond: jax.Array, a: Any, b: Any) -> Any:
+    """Per-lane select ``cond [B] ? a : b`` over pytrees with leading lane axis."""
+    return jax.tree.map(lambda x, y: jnp.where(cond.reshape(cond.shape + (1,) * (x.ndim - 1)), x, y), a, b)
+
+
+def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | None = None) -> Trainer:
+    """Build the DDPG :class:`~jaxrl_robot.types.Trainer` for ``env``.
+
+    Args:
+      config: hyper-parameters (validated here).
+      env: an *unbatched* env; with HER it must provide the goal-conditioned API
+        (:data:`GOAL_API`) and ``state.info["ee_pos"]``.
+      iterations_per_update: iterations per ``update`` call (default: one epoch of
+        ``cycles_per_epoch`` cycles for 'episodes', 1 for 'steps').
+    Raises:
+      ConfigError: invalid settings, or HER on an env without the goal API.
+    """
+    config.validate()
+    chunk = iterations_per_update or (config.cycles_per_epoch if config.schedule == "episodes" else 1)
+    if chunk < 1:
+        raise ConfigError(f"iterations_per_update={iterations_per_update} must be >= 1")
+    if config.her != "none":
+        missing = [name for name in GOAL_API if not hasattr(env, name)]
+        if missing:
+            raise ConfigError(f"her={config.her!r} needs the goal-conditioned env API; env lacks {', '.join(missing)}")
+    episode_length = int(config.episode_length or getattr(env, "episode_length", 0) or 0)
+    if episode_length < 1:
+        raise ConfigError("episode_length=0: this env has no default episode_length; set episode_length >= 1")
+    B, T = config.num_envs, episode_length
+    obs_size, action_size = int(env.observation_size), int(env.action_size)
+    actor, critic = make_networks(config, action_size)
+    actor_tx = _optimizer(config.actor_lr, config.max_grad_norm)
+    critic_tx = _optimizer(config.critic_lr, config.max_grad_norm)
+    noise = make_noise_for(config, action_size)
+    her = make_her(env, config.her, config.her_k) if config.her != "none" else None
+    copies = her.copies if her is not None else 1
+    rows_per_iteration = B * T * copies if config.schedule == "episodes" else B * config.unroll_length
+    if rows_per_iteration > config.buffer_size:
+        raise ConfigError(
+            f"buffer_size={config.buffer_size} is out of range; one iteration stores up to {rows_per_iteration} "
+            "transitions, so allowed [that, inf)"
+        )
+    if config.per:
+        replay = make_prioritized_replay(
+            config.buffer_size, config.batch_size, config.alpha, config.beta0, config.beta_increment
+        )
+    else:
+        replay = make_uniform_replay(config.buffer_size, config.batch_size)
+    min_stored = max(config.batch_size, config.learning_starts)
+    steps_per_iteration = B * (T if config.schedule == "episodes" else config.unroll_length)
+    num_updates = -(-config.iterations // chunk)
+    if config.schedule == "episodes":
+        lane_env = EpisodeWrapper(env, T)
+        batched_env = None
+    else:
+        lane_env = None
+        batched_env = wrap_for_training(env, episode_length=T)
+
+    def act(params: Any, obs: jax.Array) -> jax.Array:
+        return actor.apply(params, obs)
+
+    def explore(key: jax.Array, params: Any, obs: jax.Array, nstate: NoiseState) -> tuple[jax.Array, NoiseState]:
+        """``a = clip(μ(s) + ω, -1, 1)`` (Eq. 3.7) for every lane: ``[B, O] -> [B, A]``."""
+        eps, nstate = jax.vmap(noise.sample)(jax.random.split(key, obs.shape[0]), nstate)
+        return jnp.clip(act(params, obs) + eps, -1.0, 1.0), nstate
+
+    def fresh_noise() -> NoiseState:
+        return jax.vmap(lambda _: noise.init())(jnp.arange(B))
+
+    # ---- init --------------------------------------------------------------------------
+    def init(key: jax.Array) -> DDPGState:
+        k_actor, k_critic, k_env, k_run = jax.random.split(key, 4)
+        dummy_obs = jnp.zeros((1, obs_size), jnp.float32)
+        dummy_act = jnp.zeros((1, action_size), jnp.float32)
+        actor_params = actor.init(k_actor, dummy_obs)
+        critic_params = critic.init(k_critic, dummy_obs, dummy_act)
+        example = Transition(
+            obs=jnp.zeros((obs_size,), jnp.float32),
+            action=jnp.zeros((action_size,), jnp.float32),
+            reward=jnp.zeros((), jnp.float32),
+            next_obs=jnp.zeros((obs_size,), jnp.float32),
+            terminated=jnp.zeros((), jnp.float32),
+        )
+        keys = jax.random.split(k_env, B)
+        env_state = jax.vmap(lane_env.reset)(keys) if lane_env is not None else batched_env.reset(keys)
+        return DDPGState(
+            actor_params=actor_params,
+            critic_params=critic_params,
+            target_actor_params=actor_params,
+            target_critic_params=critic_params,
+            actor_opt=actor_tx.init(actor_params),
+            critic_opt=critic_tx.init(critic_params),
+            replay=replay.init(example),
+            env_state=env_state,
+            noise_state=fresh_noise(),
+            key=k_run,
+            iteration=jnp.zeros((), jnp.int32),
+            updates=jnp.zeros((), jnp.int32),
+        )
+
+    # ---- acting: 'episodes' schedule -----------------------------------------------------
+    def run_episodes(key: jax.Array, params: Any) -> tuple[State, Transition, jax.Array, dict]:
+        """Run B whole episodes; returns (final state, Transition [T*B*C], mask [T*B*C], episode sums)."""
+        k_reset, k_steps, k_her = jax.random.split(key, 3)
+        state0 = jax.vmap(lane_env.reset)(jax.random.split(k_reset, B))
+        goal_env = her is not None
+
+        def body(carry, k):
+            s, nstate, finished = carry
+            a, nstate = explore(k, params, s.obs, nstate)
+            ns = jax.vmap(lane_env.step)(s, a)
+            done = ns.done.astype(jnp.float32)
+            term = done * (1.0 - ns.info["truncation"].astype(jnp.float32))
+            success = ns.metrics.get("success", jnp.zeros_like(done)).astype(jnp.float32)
+            alive = 1.0 - finished
+            row = {
+                "obs": s.obs, "action": a, "reward": ns.reward, "next_obs": ns.obs, "terminated": term,
+                "failed": term * (1.0 - success), "valid": alive, "ending": alive * done,
+                "metrics": {k: v for k, v in ns.metrics.items() if v.shape == (B,)},
+            }
+            if goal_env:
+                row["achieved"] = jax.vmap(env.achieved_goal)(ns)
+                row["ee_pos"] = ns.info["ee_pos"]
+            # lanes keep stepping after their episode ended; those steps are masked out
+            return (ns, nstate, jnp.maximum(finished, done)), row
+
+        carry = (state0, fresh_noise(), jnp.zeros((B,), jnp.float32))
+        (final, _, _), traj = jax.lax.scan(body, carry, jax.random.split(k_steps, T))
+        sums = {"episodes": jnp.asarray(B, jnp.float32)}
+        sums["episode_return"] = jnp.sum(traj["valid"] * traj["reward"])
+        sums["episode_length"] = jnp.sum(traj["valid"])
+        for name, v in traj["metrics"].items():
+            sums[name] = jnp.sum(traj["ending"] * v)
+        if not goal_env:
+            tr = Transition(traj["obs"], traj["action"], traj["reward"], traj["next_obs"], traj["terminated"])
+            flat = jax.tree.map(lambda x: x.reshape(T * B, *x.shape[2:]), tr)
+            return final, flat, traj["valid"].reshape(-1) > 0, sums
+        lane_major = jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), traj)
+        achieved0 = jax.vmap(env.achieved_goal)(state0)
+        episodes = GoalEpisode(
+            obs=lane_major["obs"], action=lane_major["action"], reward=lane_major["reward"],
+            next_obs=lane_major["next_obs"], terminated=lane_major["terminated"], failed=lane_major["failed"],
+            valid=lane_major["valid"],
+            achieved=jnp.concatenate([achieved0[:, None], lane_major["achieved"]], axis=1),
+            ee_pos=jnp.concatenate([state0.info["ee_pos"][:, None], lane_major["ee_pos"]], axis=1),
+            goal=jax.vmap(env.desired_goal)(state0),
+        )
+        tr, mask, _ = jax.vmap(her.relabel)(jax.random.split(k_her, B), episodes)  # [B, T, C, ...]
+        flat = jax.tree.map(lambda x: x.reshape(B * T * copies, *x.shape[3:]), tr)
+        return final, flat, mask.reshape(-1), sums
+
+    # ---- acting: 'steps' schedule --------------------------------------------------------
+    def run_steps(key: jax.Array, params: Any, s: State, nstate: NoiseState):
+        """``unroll_length`` steps of every auto-resetting lane; Transition ``[U*B]``."""
+
+        def body(carry, k):
+            s, nstate = carry
+            a, nstate = explore(k, params, s.obs, nstate)
+            ns = batched_env.step(s, a)
+            done = ns.done.astype(jnp.float32)
+            term = done * (1.0 - ns.info["truncation"].astype(jnp.float32))
+            tr = Transition(s.obs, a, ns.reward, ns.info["final_obs"], term)
+            nstate = _tree_where(done > 0, fresh_noise(), nstate)  # new episode, new noise process
+            ep = {"episodes": jnp.sum(done), "episode_return": jnp.sum(done * ns.info["episode_return"]),
+                  "episode_length": jnp.sum(done * ns.info["episode_length"])}
+            for name, v in ns.metrics.items():
+                if v.shape == (B,):
+                    ep[name] = jnp.sum(done * v)
+            return (ns, nstate), (tr, ep)
+
+        (s, nstate), (traj, ep) = jax.lax.scan(body, (s, nstate), jax.random.split(key, config.unroll_length))
+        flat = jax.tree.map(lambda x: x.reshape(-1, *x.shape[2:]), traj)
+        return s, nstate, flat, jax.tree.map(jnp.sum, ep)
+
+    # ---- learning ------------------------------------------------------------------------
+    def learn_step(carry: tuple, key: jax.Array) -> tuple[tuple, dict[str, jax.Array]]:
+        actor_p, critic_p, t_actor, t_critic, a_opt, c_opt, buf = carry
+        smp = replay.sample(key, buf)
+        tr: Transition = smp.experience
+        weights = smp.weights if config.per else None
+        next_q = critic.apply(t_critic, tr.next_obs, act(t_actor, tr.next_obs))
+        y = td_target(tr.reward * config.reward_scale, tr.terminated, next_q, config.gamma)
+        if config.target_clip:
+            y = jnp.clip(y, config.target_clip[0], config.target_clip[1])
+
+        def c_loss(p):
+            return critic_loss(critic.apply(p, tr.obs, tr.action), y, weights)
+
+        (closs, td), grads = jax.value_and_grad(c_loss, has_aux=True)(critic_p)
+        updates, c_opt = critic_tx.update(grads, c_opt, critic_p)
+        critic_p = optax.apply_updates(critic_p, updates)
+
+        def a_loss(p):
+            q = critic.apply(critic_p, tr.obs, act(p, tr.obs))
+            return actor_loss(q), q
+
+        (aloss, q), grads = jax.value_and_grad(a_loss, has_aux=True)(actor_p)
+        updates, a_opt = actor_tx.update(grads, a_opt, actor_p)
+        actor_p = optax.apply_updates(actor_p, updates)
+        t_actor = soft_update(t_actor, actor_p, config.tau)
+        t_critic = soft_update(t_critic, critic_p, config.tau)
+        if config.per:
+            buf = replay.update_priorities(buf, smp.indices, td)
+        out = {"critic_loss": closs, "actor_loss": aloss, "q": jnp.mean(q), "td_abs": jnp.mean(jnp.abs(td))}
+        return (actor_p, critic_p, t_actor, t_critic, a_opt, c_opt, buf), out
+
+    def learn(state: DDPGState, key: jax.Array, n: int) -> tuple[DDPGState, dict[str, jax.Array], jax.Array]:
+        """``n`` updates if enough transitions are stored; returns (state, metric sums, count)."""
+        carry = (state.actor_params, state.critic_params, state.target_actor_params, state.target_critic_params,
+                 state.actor_opt, state.critic_opt, state.replay)
+
+        def run(c):
+            c, out = jax.lax.scan(learn_step, c, jax.random.split(key, n))
+            return c, jax.tree.map(jnp.sum, out), jnp.asarray(n, jnp.float32)
+
+        def skip(c):
+            zero = jnp.zeros((), jnp.float32)
+            return c, {"critic_loss": zero, "actor_loss": zero, "q": zero, "td_abs": zero}, zero
+
+        carry, sums, count = jax.lax.cond(state.replay.size >= min_stored, run, skip, carry)
+        a_p, c_p, ta, tc, ao, co, buf = carry
+        state = state.replace(actor_params=a_p, critic_params=c_p, target_actor_params=ta, target_critic_params=tc,
+                              actor_opt=ao, critic_opt=co, replay=buf, updates=state.updates + count.astype(jnp.int32))
+        return state, sums, count
+
+    # ---- one iteration, one chunk ------------------------------------------------------------
+    def iteration(state: DDPGState) -> tuple[DDPGState, tuple]:
+        key, k_act, k_learn = jax.random.split(state.key, 3)
+        if config.schedule == "episodes":
+            env_state, flat, mask, ep = run_episodes(k_act, state.actor_params)
+            buf = replay.add(state.replay, flat, mask=mask)
+            state = state.replace(env_state=env_state, replay=buf)
+            n_updates = config.updates_per_cycle
+        else:
+            env_state, nstate, flat, ep = run_steps(k_act, state.actor_params, state.env_state, state.noise_state)
+            state = state.replace(env_state=env_state, noise_state=nstate, replay=replay.add(state.replay, flat))
+            n_updates = config.updates_per_iteration
+        state, sums, count = learn(state, k_learn, n_updates)
+        state = state.replace(key=key, iteration=state.iteration + 1)
+        return state, (sums, count, ep)
+
+    def update(state: DDPGState) -> tuple[DDPGState, Metrics]:
+        state, (sums, count, ep) = jax.lax.scan(lambda s, _: iteration(s), state, None, length=chunk)
+        n = jnp.sum(count)
+        out: dict[str, jax.Array] = {k: jnp.where(n > 0, jnp.sum(v) / jnp.maximum(n, 1.0), jnp.nan)
+                                     for k, v in sums.items()}
+        ep = jax.tree.map(jnp.sum, ep)
+        episodes = ep.pop("episodes")
+        out["episodes"] = episodes
+        for k, v in ep.items():
+            out[k] = jnp.where(episodes > 0, v / jnp.maximum(episodes, 1.0), jnp.nan)
+        out["replay_size"] = state.replay.size.astype(jnp.float32)
+        out["updates"] = state.updates.astype(jnp.float32)
+        if config.per:
+            out["beta"] = state.replay.beta
+        return state, out
+
+    def policy(state: DDPGState) -> Policy:
+        def greedy(obs: jax.Array) -> jax.Array:
+            return act(state.actor_params, obs)
+
+        return greedy
+
+    return Trainer(
+        init=init,
+        update=update,
+        policy=policy,
+        num_updates=num_updates,
+        env_steps_per_update=steps_per_iteration * chunk,
+    )
+
+
+def make_train(
+    config: DDPGConfig, env: Env, *, iterations_per_update: int | None = None
+) -> Callable[[jax.Array], tuple[DDPGState, Metrics]]:
+    """``train(key) -> (final state, metrics [num_updates])``: the whole run, pure and jittable."""
+    trainer = make_trainer(config, env, iterations_per_update=iterations_per_update)
+
+    def train(key: jax.Array) -> tuple[DDPGState, Metrics]:
+        state = trainer.init(key)
+        return jax.lax.scan(lambda s, _: trainer.update(s), state, None, length=trainer.num_updates)
+
+    return train

@@ -1,0 +1,129 @@
+"""DDPG: losses and gradients by hand on a tiny network, soft update, termination vs truncation, learning."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from envs_mjx.config import ConfigError
+from jaxrl_robot.agents.ddpg import (
+    DDPGActor,
+    DDPGConfig,
+    DDPGCritic,
+    actor_loss,
+    critic_loss,
+    make_trainer,
+    soft_update,
+    td_target,
+)
+from jaxrl_robot.evaluation import run_test_episodes, summarize_episodes
+from tests.replay.toy_goal_env import ToyGoalEnv
+
+
+def _linear_params(w, b):
+    return {"params": {"Dense_0": {"kernel": jnp.asarray(w, jnp.float32)[:, None], "bias": jnp.asarray([b], jnp.float32)}}}
+
+
+def test_td_target_bootstraps_on_truncation_not_on_termination():
+    y = td_target(jnp.array([1.0, -1.0, 0.5]), jnp.array([0.0, 1.0, 0.0]), jnp.array([2.0, 5.0, -4.0]), 0.9)
+    np.testing.assert_allclose(y, [1.0 + 0.9 * 2.0, -1.0, 0.5 - 0.9 * 4.0])
+
+
+def test_critic_loss_and_gradient_by_hand_with_importance_weights():
+    critic = DDPGCritic(hidden=())  # Q(s, a) = w·[s, a] + b
+    params = _linear_params([0.5, -1.0, 2.0], 0.1)
+    obs = jnp.array([[1.0, 2.0], [0.0, -1.0]])
+    act = jnp.array([[0.5], [-1.0]])
+    q = critic.apply(params, obs, act)
+    np.testing.assert_allclose(q, [0.5 - 2.0 + 1.0 + 0.1, 1.0 - 2.0 + 0.1], rtol=1e-6)  # [-0.4, -0.9]
+    y = jnp.array([1.0, -2.0])
+    weights = jnp.array([1.0, 0.25])
+    loss, td = critic_loss(q, y, weights)
+    np.testing.assert_allclose(td, [1.4, -1.1], rtol=1e-6)
+    np.testing.assert_allclose(loss, (1.0 * 1.4**2 + 0.25 * 1.1**2) / 2, rtol=1e-6)
+    grads = jax.grad(lambda p: critic_loss(critic.apply(p, obs, act), y, weights)[0])(params)["params"]["Dense_0"]
+    x = np.array([[1.0, 2.0, 0.5], [0.0, -1.0, -1.0]])
+    # dL/dw = mean_i 2 w_i (Q_i - y_i) x_i
+    coef = 2 * np.array([1.0, 0.25]) * np.array([-1.4, 1.1]) / 2
+    np.testing.assert_allclose(grads["kernel"][:, 0], coef @ x, rtol=1e-5)
+    np.testing.assert_allclose(grads["bias"], [coef.sum()], rtol=1e-5)
+    # without PER the weights are 1
+    np.testing.assert_allclose(critic_loss(q, y)[0], (1.4**2 + 1.1**2) / 2, rtol=1e-6)
+
+
+def test_actor_gradient_is_dq_da_times_dmu_dtheta():
+    actor = DDPGActor(action_size=1, hidden=(), output="tanh")  # μ(s) = tanh(v·s + c)
+    critic = DDPGCritic(hidden=())
+    a_params = _linear_params([0.3, -0.2], 0.05)
+    c_params = _linear_params([0.5, -1.0, 2.0], 0.1)
+    obs = jnp.array([[1.0, 2.0], [0.0, -1.0], [3.0, 1.0]])
+
+    def loss(p):
+        return actor_loss(critic.apply(c_params, obs, actor.apply(p, obs)))
+
+    grads = jax.grad(loss)(a_params)["params"]["Dense_0"]
+    z = obs @ jnp.array([0.3, -0.2]) + 0.05
+    dq_da = 2.0  # the action's critic weight
+    dmu_dz = 1 - jnp.tanh(z) ** 2
+    expected = -(dq_da * dmu_dz[:, None] * obs).mean(0)  # Eq. 3.6, negated as a loss
+    np.testing.assert_allclose(grads["kernel"][:, 0], expected, rtol=1e-5)
+    np.testing.assert_allclose(grads["bias"], [-(dq_da * dmu_dz).mean()], rtol=1e-5)
+    sig = DDPGActor(action_size=2, hidden=(4,), output="sigmoid")
+    out = sig.apply(sig.init(jax.random.PRNGKey(0), obs), obs * 100)
+    assert out.shape == (3, 2) and bool(((out >= 0) & (out <= 1)).all())
+
+
+def test_soft_update_by_hand():
+    target = {"w": jnp.array([1.0, 2.0]), "b": jnp.array(0.0)}
+    online = {"w": jnp.array([3.0, -2.0]), "b": jnp.array(1.0)}
+    new = soft_update(target, online, 0.05)
+    np.testing.assert_allclose(new["w"], [0.05 * 3 + 0.95 * 1, 0.05 * -2 + 0.95 * 2], rtol=1e-6)
+    np.testing.assert_allclose(new["b"], 0.05, rtol=1e-6)
+
+
+def _tiny(**kw):
+    base = dict(epochs=1, cycles_per_epoch=2, updates_per_cycle=2, num_envs=2, batch_size=8, buffer_size=500,
+                actor_hidden=(8,), critic_hidden=(8,))
+    base.update(kw)
+    return DDPGConfig(**base)
+
+
+@pytest.mark.parametrize("step_size,noise,expected", [(1e-4, 0.0, 0.0), (2.0, 10.0, 1.0)])
+def test_replay_marks_termination_only(step_size, noise, expected):
+    # tiny steps: every episode is cut by the time limit (truncation, d = 0);
+    # saturated actions of size 2 leave the region [-1, 1]^3 at the first step (failure, d = 1)
+    env = ToyGoalEnv(max_steps=3, step_size=step_size, threshold=1e-6)
+    trainer = make_trainer(_tiny(episode_length=3, noise_scale=(noise,)), env)
+    state = trainer.init(jax.random.PRNGKey(0))
+    state, metrics = jax.jit(trainer.update)(state)
+    size = int(state.replay.size)
+    assert size == (2 * 2 * 3 if expected == 0.0 else 2 * 2)
+    np.testing.assert_array_equal(state.replay.data.terminated[:size], expected)
+    assert float(metrics["episodes"]) == 4.0
+
+
+def test_config_errors_name_the_field():
+    with pytest.raises(ConfigError, match="her='best' is not valid"):
+        _tiny(her="best").validate()
+    with pytest.raises(ConfigError, match="her='future' needs whole episodes"):
+        _tiny(her="future", schedule="steps").validate()
+    with pytest.raises(ConfigError, match=r"tau=0 is out of range"):
+        _tiny(tau=0).validate()
+    with pytest.raises(ConfigError, match="buffer_size=10 is out of range"):
+        make_trainer(_tiny(buffer_size=10, episode_length=20), ToyGoalEnv())
+
+
+def test_sparse_her_learns_to_reach_goals():
+    """Sparse reward + HER future k=4 with PER on the toy reacher: ≥ 90 % of 100 test episodes."""
+    env = ToyGoalEnv(reward="sparse", max_steps=20)
+    config = DDPGConfig(epochs=3, cycles_per_epoch=10, num_envs=8, updates_per_cycle=20, buffer_size=20_000,
+                        her="future", her_k=4, per=True, target_clip=(-10.0, 0.0), actor_hidden=(64, 64),
+                        critic_hidden=(64, 64))
+    trainer = make_trainer(config, env)
+    update = jax.jit(trainer.update)
+    state = trainer.init(jax.random.PRNGKey(0))
+    for _ in range(trainer.num_updates):
+        state, metrics = update(state)
+    assert float(metrics["updates"]) == 3 * 10 * 20
+    result = summarize_episodes(run_test_episodes(jax.random.PRNGKey(1), env, trainer.policy(state), 100))
+    assert result["success_rate"] >= 0.9, result
