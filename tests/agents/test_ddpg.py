@@ -21,7 +21,8 @@ from tests.replay.toy_goal_env import ToyGoalEnv
 
 
 def _linear_params(w, b):
-    return {"params": {"Dense_0": {"kernel": jnp.asarray(w, jnp.float32)[:, None], "bias": jnp.asarray([b], jnp.float32)}}}
+    dense = {"kernel": jnp.asarray(w, jnp.float32)[:, None], "bias": jnp.asarray([b], jnp.float32)}
+    return {"params": {"Dense_0": dense}}
 
 
 def test_td_target_bootstraps_on_truncation_not_on_termination():
