@@ -8,8 +8,9 @@
 * **Episode parameters** — ``{"start_lo", "start_hi", "et_limit"}`` live in
   ``state.info["params"]`` as float32 scalars.  They are traced values, so a trainer moves the
   piecewise curriculum (whole reference → ¼–½ → first quarter → t = 0, limit 20 → 15 → 10) by
-  writing new values into the state; the wrappers of :mod:`envs_mjx.base` carry them across
-  auto-resets and nothing recompiles.
+  writing new values into the state (:func:`with_params`; keep them float32 of the same shape — a
+  weakly typed value would retrace a jitted step); the wrappers of :mod:`envs_mjx.base` carry them
+  across auto-resets and nothing recompiles.
 * **Test episode** — :func:`rollout` (pure, jittable) runs one episode from ``t = 0`` with a
   deterministic policy; :func:`test_episode` jit-compiles it and returns the per-axis **sum of
   |error|** over all steps (Tables 4.3–4.5, 5.4–5.7, 7.2–7.3), the mean per step, the number of
@@ -43,6 +44,7 @@ __all__ = [
     "rsi_index",
     "test_episode",
     "eval_params",
+    "with_params",
     "wrap_angle",
 ]
 
@@ -78,6 +80,22 @@ def resolve_length(cfg: Any, default_duration: float) -> dict[str, Any]:
             f"(= {duration / dt:g} steps); give one of them"
         )
     return {"duration": float(duration), "max_steps": int(max_steps)}
+
+
+def with_params(state: Any, **values: Any) -> Any:
+    """``state`` with ``info["params"][name] = value`` for each keyword, shaped and typed as before.
+
+    Values are broadcast to the stored shape (one per lane in a batched state) as float32, so a
+    jitted step does not recompile.  Example: ``with_params(state, start_lo=0.25, start_hi=0.5)``.
+    """
+    old = state.info["params"]
+    unknown = sorted(set(values) - set(old))
+    if unknown:
+        raise ValueError(f"unknown episode parameter(s) {unknown}; valid: {', '.join(sorted(old))}")
+    new = dict(old)
+    for name, value in values.items():
+        new[name] = jnp.broadcast_to(jnp.asarray(value, jnp.float32), jnp.shape(old[name]))
+    return state.replace(info={**state.info, "params": new})
 
 
 def eval_params() -> dict[str, jax.Array]:
@@ -203,7 +221,7 @@ def test_episode(
     Returns the keys of :func:`rollout` as NumPy arrays (``steps`` an ``int``) plus ``axis_names``
     (e.g. ``('x', 'y', 'z')`` or ``('x', 'y', 'theta')``).
     """
-    out = _jitted_rollout(env, policy_fn)(None if params is None else make_params(eval_params(), params))
+    out = _jitted_rollout(env, policy_fn)(make_params(eval_params(), params))
     host = {k: np.asarray(v) for k, v in out.items()}
     host["steps"] = int(host["steps"])
     host["episode_return"] = float(host["episode_return"])

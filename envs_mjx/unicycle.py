@@ -235,7 +235,7 @@ class Unicycle(RobotEnv):
         self._data0 = mjx.make_data(self.mjx_model)
         self._scale = jnp.asarray(cfg.action_scale, jnp.float32)
         if cfg.obs_pos_scale is None:
-            ref = jax.vmap(lambda k: self.reference(k).pos)(jnp.arange(cfg.max_steps + 1))
+            ref = jax.jit(jax.vmap(lambda k: self.reference(k).pos))(jnp.arange(cfg.max_steps + 1))
             extent = np.maximum(np.max(np.abs(np.asarray(ref[:, :2])), axis=0), 1.0)
             self._pos_scale = jnp.asarray(extent, jnp.float32)
         else:

@@ -1,0 +1,194 @@
+"""``scara``: Eq. 3.15 against MJX and MuJoCo's C engine, Eq. 3.22, RSI, early termination,
+solvability with the reference's own increments, batched robustness."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+from mujoco import mjx
+
+import envs_mjx
+from envs_mjx.config import ConfigError
+from envs_mjx.scara import Scara, build_model, forward_kinematics, scara_reward
+
+
+def _eq_3_15(q, l1, l2, d):
+    t1, t2, d3 = q[..., 0], q[..., 1], q[..., 2]
+    return np.stack([l1 * np.cos(t1) + l2 * np.cos(t1 - t2), l1 * np.sin(t1) + l2 * np.sin(t1 - t2), d - d3], -1)
+
+
+@pytest.fixture(scope="module")
+def scara():
+    """The default env and a jit(vmap) scan feeding ``actions [B, T, 3]`` (NaN rows: reference increments)."""
+    env = Scara()
+
+    def one(key, params, actions):
+        state = env.reset(key, params)
+
+        def body(s, a):
+            a = jnp.where(jnp.isnan(a), env.reference_action(s.info["k"]), a)
+            s = env.step(s, a)
+            rec = {"reward": s.reward, "done": s.done, "q": s.info["q"], "ee": s.info["ee_pos"],
+                   "ref": s.info["ref_pos"], "k": s.info["k"], "obs": s.obs, **s.metrics}
+            return s, rec
+
+        return state, jax.lax.scan(body, state, actions)[1]
+
+    run = jax.jit(jax.vmap(one, in_axes=(0, None, 0)))
+
+    def padded(params, actions):
+        """Always one lane and ``max_steps`` steps, so the scan compiles once."""
+        actions = jnp.asarray(actions, jnp.float32)
+        pad = jnp.zeros((1, env.max_steps - actions.shape[1], 3))
+        return run(jax.random.PRNGKey(0)[None], params, jnp.concatenate([actions, pad], axis=1))
+
+    return env, padded
+
+
+def _start(frac, limit=math.inf):
+    return {"start_lo": frac, "start_hi": frac, "et_limit": limit}
+
+
+def _mjx_sites(env, site, qs):
+    data = mjx.make_data(env.mjx_model)
+    kin = jax.jit(jax.vmap(lambda q: mjx.kinematics(env.mjx_model, data.replace(qpos=q)).site_xpos[site]))
+    return kin(jnp.asarray(qs, jnp.float32))
+
+
+def test_site_matches_eq_3_15_in_mjx_and_c_engine():
+    """Random joints, default and non-default geometry: the MJCF site is Eq. 3.15 (C engine for
+    both geometries, MJX for the rewritten one)."""
+    rng = np.random.default_rng(0)
+    for l1, l2, d in ((1.0, 0.8, 1.0), (0.35, 0.25, 0.6)):
+        env = Scara(l1=l1, l2=l2, height=d, joint_hi=(2.6, 2.6, 0.3), ref_center=(0.0, 1.2, 0.15),
+                    ref_amplitude=(0.8, 0.5, 0.1))
+        mj = env.mj_model
+        site = mujoco.mj_name2id(mj, mujoco.mjtObj.mjOBJ_SITE, "ee")
+        qs = np.stack([rng.uniform(-2.6, 2.6, 16), rng.uniform(-2.6, 2.6, 16), rng.uniform(0.0, 0.3, 16)], 1)
+        expect = _eq_3_15(qs, l1, l2, d)
+        data = mujoco.MjData(mj)
+        c_sites = []
+        for q in qs:
+            data.qpos[:] = q
+            mujoco.mj_kinematics(mj, data)
+            c_sites.append(data.site_xpos[site].copy())
+        np.testing.assert_allclose(np.stack(c_sites), expect, atol=1e-9)
+        np.testing.assert_allclose(forward_kinematics(jnp.asarray(qs), l1, l2, d), expect, atol=2e-6)
+    np.testing.assert_allclose(_mjx_sites(env, site, qs), expect, atol=2e-6)
+
+
+def test_mjx_servo_step_matches_c_engine(scara):
+    """One control step (n_substeps of implicitfast with position servos) agrees with MuJoCo C."""
+    env, run = scara
+    state, rec = run(_start(0.3), jnp.array([[[0.7, -0.4, 0.9]]]))
+    k0 = int(0.3 * env.max_steps)
+    r = env.joint_reference(k0)
+    mj, d = env.mj_model, mujoco.MjData(env.mj_model)
+    d.qpos[:], d.qvel[:] = np.asarray(r.q), np.asarray(r.qd)
+    d.ctrl[:] = np.clip(np.asarray(r.q) + np.array([0.07, -0.04, 0.045]), [-2.6, -2.6, 0.0], [2.6, 2.6, 0.5])
+    for _ in range(env.config.n_substeps):
+        mujoco.mj_step(mj, d)
+    np.testing.assert_allclose(rec["q"][0, 0], d.qpos, atol=2e-5)
+    np.testing.assert_allclose(rec["ee"][0, 0], _eq_3_15(d.qpos, 1.0, 0.8, 1.0), atol=2e-5)
+
+
+def test_reward_eq_3_22_hand_computed(scara):
+    np.testing.assert_allclose(scara_reward(jnp.array([0.1, -0.2, 0.3])), math.exp(-2 * 0.14), rtol=1e-6)
+    np.testing.assert_allclose(scara_reward(jnp.zeros(3)), 1.0)
+    env, run = scara
+    _, rec = run(_start(0.5), jnp.array([[[1.0, -1.0, 1.0], [1.0, 0.5, -1.0]]]))
+    for i in range(2):
+        e = np.asarray(rec["ref"][0, i], np.float64) - np.asarray(rec["ee"][0, i])
+        assert np.linalg.norm(e) > 0.05  # a real error, not a trivially perfect step
+        np.testing.assert_allclose(rec["reward"][0, i], math.exp(-2 * np.sum(e**2)), rtol=1e-5)
+        np.testing.assert_allclose(rec["obs"][0, i, 7:], e / env.config.obs_error_scale, rtol=1e-4, atol=1e-5)
+        q = np.asarray(rec["q"][0, i])
+        np.testing.assert_allclose(rec["obs"][0, i, :4], [np.sin(q[0]), np.cos(q[0]), np.sin(q[1]), np.cos(q[1])],
+                                   atol=1e-6)
+    # reference at k0 + 1 + i is the forward kinematics of the joint reference
+    k0 = int(0.5 * env.max_steps)
+    np.testing.assert_allclose(rec["ref"][0, 0], _eq_3_15(np.asarray(env.joint_reference(k0 + 1).q), 1.0, 0.8, 1.0),
+                               atol=2e-6)
+
+
+def test_rsi_starts_exactly_on_reference_state(scara):
+    env, _ = scara
+    reset = jax.jit(env.reset)
+    for frac in (0.0, 0.42, 0.999):
+        state = reset(jax.random.PRNGKey(5), _start(frac))
+        k0 = int(math.floor(frac * env.max_steps))
+        r = env.joint_reference(k0)
+        assert int(state.info["k"]) == k0
+        np.testing.assert_allclose(state.info["t"], k0 * env.dt, rtol=1e-6)
+        np.testing.assert_allclose(state.pipeline_state.qpos, r.q, atol=1e-7)
+        np.testing.assert_allclose(state.pipeline_state.qvel, r.qd, atol=1e-7)
+        np.testing.assert_allclose(state.info["ee_pos"], state.info["ref_pos"], atol=1e-7)
+        np.testing.assert_allclose(state.obs[7:], 0.0, atol=1e-6)
+    ks = jax.vmap(lambda k: reset(k, {"start_lo": 0.25, "start_hi": 0.5}).info["k"])(
+        jax.random.split(jax.random.PRNGKey(0), 64)
+    )
+    assert int(ks.min()) >= int(0.25 * env.max_steps) and int(ks.max()) < int(0.5 * env.max_steps)
+
+
+def test_early_termination_after_limit_plus_one_and_zero_reward_after(scara):
+    env, run = scara
+    _, rec = run(_start(0.0, limit=5.0), jnp.ones((1, 30, 3)))  # run away from the reference
+    over = np.asarray(rec["pos_error"][0, :30]) > env.config.et_threshold
+    done = np.asarray(rec["done"][0, :30])
+    first = int(np.argmax(done > 0))
+    assert over[first] and np.cumsum(over)[first] == 6  # exactly limit + 1 over-threshold steps
+    assert not done[:first].any() and done[first:].all()
+    assert np.all(np.asarray(rec["reward"][0, :first]) > 0)
+    np.testing.assert_array_equal(rec["reward"][0, first:30], 0.0)
+    assert float(rec["reward_tracking"][0, first]) > 0  # the tracking term itself is not zero
+
+
+def test_reference_increments_track_the_reference(scara):
+    env, run = scara
+    _, rec = run(_start(0.0, limit=0.0), jnp.full((1, env.max_steps, 3), jnp.nan))
+    assert float(jnp.max(rec["pos_error"])) < 5e-3
+    assert int(jnp.argmax(rec["done"][0])) == env.max_steps - 1  # ends with the reference, no ET
+    assert float(rec["reward"][0].min()) > 0.9999
+    acts = jax.vmap(env.reference_action)(jnp.arange(env.max_steps))
+    assert float(jnp.max(jnp.abs(acts))) < 1.0  # the reference is reachable with |a| <= 1
+
+
+def test_config_errors_and_registry():
+    env = envs_mjx.make("scara", dt=0.05, n_substeps=10)
+    assert env.max_steps == 314 and env.mj_model.opt.timestep == pytest.approx(0.005)
+    assert Scara(max_steps=50).config.duration == pytest.approx(5.0)
+    with pytest.raises(ConfigError, match=r"ref_center\[1\] ± ref_amplitude\[1\].*theta2 range"):
+        Scara(ref_amplitude=(0.8, 2.0, 0.15))
+    with pytest.raises(ConfigError, match=r"rsi=\(0.6, 0.2\) must satisfy start_lo <= start_hi"):
+        Scara(rsi=(0.6, 0.2))
+    with pytest.raises(ConfigError, match=r"l1=-1.*\(0, inf\]"):
+        Scara(l1=-1.0)
+    assert build_model(Scara.default_config().resolved()).body_pos[3][0] == pytest.approx(1.0)
+
+
+def test_jit_vmap_1024_lanes_no_nan_no_recompile(scara):
+    env, _ = scara
+    wrapped = envs_mjx.wrap_for_training(env, num_envs=1024)
+    traces = []
+
+    def step(state, action):
+        traces.append(1)
+        return wrapped.step(state, action)
+
+    jstep = jax.jit(step)
+    state = jax.jit(wrapped.reset)(jax.random.PRNGKey(0))
+    lanes = jnp.arange(1024)[:, None]
+    extreme = jnp.where(lanes % 2 == 0, 1e6, -jnp.inf) * jnp.ones((1024, 3), jnp.float32)
+    nan = jnp.full((1024, 3), jnp.nan, jnp.float32).at[::3, 1].set(0.5)
+    rand = jax.random.uniform(jax.random.PRNGKey(1), (1024, 3), minval=-1, maxval=1)
+    for actions in (rand, extreme, nan, extreme):
+        state = jstep(state, actions)
+        for x in (state.obs, state.reward, state.pipeline_state.qpos, state.pipeline_state.qvel):
+            assert bool(jnp.all(jnp.isfinite(x)))
+        q = state.info["q"]
+        assert bool(jnp.all((q >= env._lo - 0.02) & (q <= env._hi + 0.02)))
+    np.testing.assert_array_equal(state.metrics["invalid_action"], np.where(np.arange(1024) % 2 == 0, 0.0, 1.0))
+    assert len(traces) == 1
