@@ -22,6 +22,7 @@ from envs_mjx.config import ConfigError
 
 # name -> "module:Class"; imported lazily so that `names()` costs nothing.
 _REGISTRY: dict[str, str] = {
+    "arm7": "envs_mjx.arm7:Arm7",
     "scara": "envs_mjx.scara:Scara",
     "unicycle": "envs_mjx.unicycle:Unicycle",
 }
