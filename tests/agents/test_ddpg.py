@@ -94,12 +94,19 @@ def test_replay_marks_termination_only(step_size, noise, expected):
     # tiny steps: every episode is cut by the time limit (truncation, d = 0);
     # saturated actions of size 2 leave the region [-1, 1]^3 at the first step (failure, d = 1)
     env = ToyGoalEnv(max_steps=3, step_size=step_size, threshold=1e-6)
-    trainer = make_trainer(_tiny(episode_length=3, noise_scale=(noise,)), env)
+    trainer = make_trainer(_tiny(episode_length=3, noise_scale=(noise,), failure_value=-10.0), env)
     state = trainer.init(jax.random.PRNGKey(0))
-    state, metrics = jax.jit(trainer.update)(state)
+    update = jax.jit(trainer.update)
+    start = state
+    state, metrics = update(state)
+    # the output state has the input's exact types, so the next call reuses the compiled update
+    same = jax.tree.map(lambda a, b: (a.shape, a.dtype, a.weak_type) == (b.shape, b.dtype, b.weak_type), start, state)
+    assert all(jax.tree.leaves(same))
     size = int(state.replay.size)
     assert size == (2 * 2 * 3 if expected == 0.0 else 2 * 2)
     np.testing.assert_array_equal(state.replay.data.terminated[:size], expected)
+    # a failing step carries the absorbing failure value: r + γ·failure_value = -1 + 0.9·(-10)
+    np.testing.assert_allclose(state.replay.data.reward[:size], -1.0 if expected == 0.0 else -10.0, rtol=1e-6)
     assert float(metrics["episodes"]) == 4.0
 
 

@@ -88,6 +88,12 @@ class DDPGConfig:
     """Hidden widths of the critic."""
     actor_output: str = "tanh"
     """Actor output activation: 'tanh' (actions in [-1, 1]) or 'sigmoid' ([0, 1])."""
+    failure_value: float = 0.0
+    """Value of the state after a failure (a termination without success, e.g. leaving the
+    feasible region): a failing step's target is r + γ·failure_value.  0 is plain termination
+    (Algorithm 1).  With the sparse reward and γ = 0.9, plain termination makes leaving the region
+    (value −1) better than any goal more than one step away, so the sparse presets use
+    −1/(1−γ) = −10: failing counts as never reaching the goal."""
     reward_scale: float = 1.0
     """Multiply rewards by this in the critic target."""
     target_clip: tuple[float, ...] = ()

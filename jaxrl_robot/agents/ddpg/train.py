@@ -18,6 +18,9 @@ importance weights w); critic step on ``mean w (Q(s, a) − y)²`` with
 truncation bootstraps); actor step on ``−mean Q(s, μ(s))``; soft target updates with ε;
 with PER, new priorities ``|y − Q| + ε`` and β annealing.
 
+A failing step (termination without success) is stored with reward ``r + γ·failure_value``
+and ``d = 1``, so its target is that of an absorbing failure state of value ``failure_value``.
+
 The replay buffer lives in the training state on the device, so a checkpoint of the state
 resumes a run exactly.
 """
@@ -109,6 +112,19 @@ def _tree_where(cond: jax.Array, a: Any, b: Any) -> Any:
     return jax.tree.map(lambda x, y: jnp.where(cond.reshape(cond.shape + (1,) * (x.ndim - 1)), x, y), a, b)
 
 
+def _like(new: Any, old: Any) -> Any:
+    """``new`` with the dtypes (and strong typing) of ``old``, so ``update``'s output state has
+    exactly its input's types and the jitted ``update`` never recompiles (env steps may return
+    weakly typed values where ``reset`` returned strong ones)."""
+
+    def cast(x, y):
+        if x.dtype != y.dtype or getattr(x, "weak_type", False) != getattr(y, "weak_type", False):
+            return jnp.asarray(x).astype(y.dtype)
+        return x
+
+    return jax.tree.map(cast, new, old)
+
+
 def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | None = None) -> Trainer:
     """Build the DDPG :class:`~jaxrl_robot.types.Trainer` for ``env``.
 
@@ -153,6 +169,7 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
     else:
         replay = make_uniform_replay(config.buffer_size, config.batch_size)
     min_stored = max(config.batch_size, config.learning_starts)
+    fail_bonus = config.gamma * config.failure_value  # stored into a failing step's reward (terminal: no bootstrap)
     steps_per_iteration = B * (T if config.schedule == "episodes" else config.unroll_length)
     num_updates = -(-config.iterations // chunk)
     if config.schedule == "episodes":
@@ -238,7 +255,8 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
         for name, v in traj["metrics"].items():
             sums[name] = jnp.sum(traj["ending"] * v)
         if not goal_env:
-            tr = Transition(traj["obs"], traj["action"], traj["reward"], traj["next_obs"], traj["terminated"])
+            reward = traj["reward"] + fail_bonus * traj["failed"]
+            tr = Transition(traj["obs"], traj["action"], reward, traj["next_obs"], traj["terminated"])
             flat = jax.tree.map(lambda x: x.reshape(T * B, *x.shape[2:]), tr)
             return final, flat, traj["valid"].reshape(-1) > 0, sums
         lane_major = jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), traj)
@@ -252,6 +270,7 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
             goal=jax.vmap(env.desired_goal)(state0),
         )
         tr, mask, _ = jax.vmap(her.relabel)(jax.random.split(k_her, B), episodes)  # [B, T, C, ...]
+        tr = tr._replace(reward=tr.reward + fail_bonus * episodes.failed[:, :, None])  # failure is goal-independent
         flat = jax.tree.map(lambda x: x.reshape(B * T * copies, *x.shape[3:]), tr)
         return final, flat, mask.reshape(-1), sums
 
@@ -265,7 +284,9 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
             ns = batched_env.step(s, a)
             done = ns.done.astype(jnp.float32)
             term = done * (1.0 - ns.info["truncation"].astype(jnp.float32))
-            tr = Transition(s.obs, a, ns.reward, ns.info["final_obs"], term)
+            success = ns.metrics.get("success", jnp.zeros_like(done)).astype(jnp.float32)
+            reward = ns.reward + fail_bonus * term * (1.0 - success)
+            tr = Transition(s.obs, a, reward, ns.info["final_obs"], term)
             nstate = _tree_where(done > 0, fresh_noise(), nstate)  # new episode, new noise process
             ep = {"episodes": jnp.sum(done), "episode_return": jnp.sum(done * ns.info["episode_return"]),
                   "episode_length": jnp.sum(done * ns.info["episode_length"])}
@@ -346,7 +367,9 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
         return state, (sums, count, ep)
 
     def update(state: DDPGState) -> tuple[DDPGState, Metrics]:
+        start = state
         state, (sums, count, ep) = jax.lax.scan(lambda s, _: iteration(s), state, None, length=chunk)
+        state = _like(state, start)
         n = jnp.sum(count)
         out: dict[str, jax.Array] = {k: jnp.where(n > 0, jnp.sum(v) / jnp.maximum(n, 1.0), jnp.nan)
                                      for k, v in sums.items()}
