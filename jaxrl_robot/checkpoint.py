@@ -43,9 +43,12 @@ class Checkpointer:
     def all_steps(self) -> list[int]:
         return list(self._manager.all_steps())
 
-    def restore(self, step: int, target: Any) -> tuple[Any, dict[str, Any]]:
-        """Restore ``step`` into the structure, shapes and shardings of ``target`` (a state)."""
-        abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, target)
+    def restore(self, step: int, target: Any = None) -> tuple[Any, dict[str, Any]]:
+        """Restore ``step`` into the structure, shapes and shardings of ``target`` (a state).
+
+        Without ``target`` the state comes back as saved: nested dicts of arrays.
+        """
+        abstract = None if target is None else jax.tree.map(ocp.utils.to_shape_dtype_struct, target)
         args = ocp.args.Composite(state=ocp.args.StandardRestore(abstract), record=ocp.args.JsonRestore())
         out = self._manager.restore(int(step), args=args)
         return out["state"], dict(out["record"])

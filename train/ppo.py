@@ -26,7 +26,7 @@ import tyro
 
 from jaxrl_robot.agents.ppo import PPOConfig
 from train import common
-from train.presets import ppo_preset, resolve_preset
+from train.presets import ppo_env_overrides, ppo_preset, resolve_preset
 
 __all__ = ["Args", "build", "main"]
 
@@ -42,7 +42,8 @@ class Args:
     env: str = "arm7"
     """Environment: a registered name (envs_mjx.names()) or brax:<name> for brax's own envs."""
     preset: str = "auto"
-    """Hyper-parameter preset: auto (fast on a GPU, else cpu), thesis, cpu or fast."""
+    """Hyper-parameter preset: auto (fast on a GPU, else cpu), thesis, cpu or fast (presets may also
+    set env options: arm7 runs in kinematic mode under thesis and cpu; --env-config overrides)."""
     seed: int = 0
     """Random seed of the run (training); evaluation uses a separate stream derived from it."""
     reward: str | None = None
@@ -115,7 +116,7 @@ def build(args: Args):
     from jaxrl_robot import parallel
     from jaxrl_robot.agents.ppo import make_trainer
 
-    env = make_env(args.env, env_overrides(args))
+    env = make_env(args.env, {**ppo_env_overrides(args.preset, args.env), **env_overrides(args)})
     cfg = args.ppo
     if not cfg.episode_length:
         cfg = cfg.replace(episode_length=_episode_length(env))
@@ -161,13 +162,15 @@ def parse(argv: list[str] | None = None) -> Args:
     """Parse the command line: preset defaults for ``--env`` first, then every flag."""
     argv = sys.argv[1:] if argv is None else list(argv)
     known = _preparse(argv)
+    preset = known.preset
     if known.resume:
         default_cfg = PPOConfig()
     else:
         preset = resolve_preset(known.preset)
-        probe = make_env(known.env, {})
+        probe = make_env(known.env, ppo_env_overrides(preset, known.env))
         default_cfg, _ = ppo_preset(preset, known.env, _episode_length(probe), int(probe.action_size))
-    args = tyro.cli(Args, args=argv, default=Args(ppo=default_cfg, env=known.env, preset=known.preset))
+    args = tyro.cli(Args, args=argv, default=Args(ppo=default_cfg, env=known.env, preset=preset))
+    args = dataclasses.replace(args, preset=resolve_preset(args.preset))
     if args.resume:
         args = _args_from_saved(args.resume, args)
     return args

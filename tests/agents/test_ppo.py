@@ -199,14 +199,3 @@ def test_make_train_vmaps_over_seeds_and_matches_chunked_runs(toy):
     )
     kernels = states.actor_params["Dense_0"]["kernel"]
     assert not np.allclose(kernels[0], kernels[1])
-
-
-def test_accepts_a_plain_brax_env():
-    from brax import envs as brax_envs
-
-    env = brax_envs.get_environment("fast")
-    cfg = PPOConfig(total_steps=32, num_envs=4, unroll_length=8, minibatch_size=16, sigma=(0.5,), actor_hidden=(8,),
-                    critic_hidden=(8,), batch_norm=False, episode_length=20)
-    state, metrics = jax.jit(make_train(cfg, env))(jax.random.PRNGKey(0))
-    assert np.isfinite(np.asarray(metrics["critic_loss"])).all()
-    assert state.env_state.obs.shape == (4, env.observation_size)

@@ -326,6 +326,8 @@ def make_trainer(
             critic_step, (state.critic_params, state.critic_opt), jax.random.split(k_critic, config.critic_updates)
         )
 
+        # Same dtypes in as out (an env may return weak-typed metrics), so the jitted chunk never retraces.
+        env_state = _like(env_state, state.env_state)
         new_state = PPOState(
             actor_params=actor_params,
             actor_stats=actor_stats,
@@ -389,6 +391,11 @@ def make_trainer(
         num_updates=num_updates,
         env_steps_per_update=steps_per_iteration * iterations_per_update,
     )
+
+
+def _like(tree: Any, reference: Any) -> Any:
+    """``tree`` with every leaf cast to the dtype of ``reference``'s leaf (drops weak types)."""
+    return jax.tree.map(lambda x, r: jnp.asarray(x).astype(r.dtype), tree, reference)
 
 
 def _episode_sums(traj: Transition) -> dict[str, jax.Array]:

@@ -1,0 +1,1 @@
+"""Peer implementations run beside ours in benchmarks (with labelled compatibility shims)."""

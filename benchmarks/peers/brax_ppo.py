@@ -1,0 +1,98 @@
+"""brax's own PPO (``brax.training.agents.ppo.train``) as a benchmark peer.
+
+COMPATIBILITY SHIM (benchmarks only): brax 0.14.2 calls ``jax.device_put_replicated``, which
+current JAX (>= 0.10) removed. :func:`install_shim` restores it for one-host use as "stack
+the value once per device along a new leading axis" — what brax's ``pmap``-ed training step
+expects — and changes nothing else in brax.
+"""
+
+from __future__ import annotations
+
+import functools
+import time
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+__all__ = ["install_shim", "run_brax_ppo"]
+
+
+def install_shim() -> bool:
+    """Provide ``jax.device_put_replicated`` if JAX lacks it; returns True when the shim was installed."""
+    if hasattr(jax, "device_put_replicated"):
+        return False
+
+    def device_put_replicated(x: Any, devices: list) -> Any:  # shim: see module docstring
+        n = len(devices)
+        return jax.tree.map(lambda a: jnp.stack([jnp.asarray(a)] * n), x)
+
+    jax.device_put_replicated = device_put_replicated
+    return True
+
+
+def run_brax_ppo(
+    env: Any,
+    num_envs: int,
+    unroll_length: int,
+    num_minibatches: int,
+    iterations_per_epoch: int,
+    epochs: int,
+    episode_length: int,
+    hidden: tuple[int, ...] = (200, 200),
+    seed: int = 0,
+) -> dict[str, Any]:
+    """Train brax PPO for ``epochs`` timed epochs (+1 epoch that includes compilation).
+
+    Settings mirror ours: each iteration collects ``num_envs × unroll_length`` steps and makes
+    ``num_minibatches`` updates (one pass), mini-batches of ``num_envs / num_minibatches`` unrolls.
+
+    Returns:
+      ``{"sps": [per epoch], "first_epoch_s", "steps_per_epoch"}``; epoch 0 includes compilation.
+    """
+    from brax.training.agents.ppo import networks as ppo_networks
+    from brax.training.agents.ppo import train as ppo
+
+    shimmed = install_shim()
+    steps_per_iteration = num_envs * unroll_length
+    steps_per_epoch = steps_per_iteration * iterations_per_epoch
+    records: list[dict[str, float]] = []
+
+    def progress(step: int, metrics: dict) -> None:
+        if "training/sps" in metrics:
+            sps, wall = float(metrics["training/sps"]), float(metrics["training/walltime"])
+            records.append({"step": step, "sps": sps, "wall": wall})
+
+    factory = functools.partial(
+        ppo_networks.make_ppo_networks, policy_hidden_layer_sizes=hidden, value_hidden_layer_sizes=hidden
+    )
+    t0 = time.perf_counter()
+    ppo.train(
+        environment=env,
+        num_timesteps=steps_per_epoch * (epochs + 1),
+        num_envs=num_envs,
+        episode_length=episode_length,
+        unroll_length=unroll_length,
+        batch_size=num_envs // num_minibatches,
+        num_minibatches=num_minibatches,
+        num_updates_per_batch=1,
+        learning_rate=3e-4,
+        discounting=0.9,
+        num_evals=epochs + 2,
+        run_evals=False,
+        network_factory=factory,
+        max_devices_per_host=1,
+        seed=seed,
+        progress_fn=progress,
+    )
+    total = time.perf_counter() - t0
+    sps = [r["sps"] for r in records]
+    return {
+        "sps": sps,
+        "timed_sps_median": float(np.median(sps[1:])) if len(sps) > 1 else float("nan"),
+        "first_epoch_s": records[0]["wall"] if records else float("nan"),
+        "steps_per_epoch": steps_per_epoch,
+        "total_s": total,
+        "shim_installed": shimmed,
+    }

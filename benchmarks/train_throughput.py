@@ -1,0 +1,169 @@
+"""End-to-end PPO training throughput on ``arm7``: ours over lane counts, and brax's PPO, in one run.
+
+    python -m benchmarks.train_throughput                      # sizes chosen for the device
+    python -m benchmarks.train_throughput --lanes 1024 4096 --brax-lanes 4096 --mode pd
+
+For each lane count K our PPO (``jaxrl_robot.agents.ppo``) trains with N = 16 steps per lane per
+iteration and 4 actor + 4 critic updates on mini-batches of K·N/4; one call of the jitted chunk
+runs ``--chunk-iters`` iterations. Compilation is timed apart (``lower().compile()``), then the
+median of ``--repeats`` timed chunk calls (``block_until_ready``) gives env-steps/s (env steps
+include everything: acting, physics, returns, updates).
+
+brax's ``ppo.train`` (``benchmarks/peers/brax_ppo.py``, with its labelled JAX-compat shim) runs on
+the same env object and device with the same K, N, four mini-batch updates per iteration and
+2 x 200 networks; its own per-epoch ``training/sps`` is used, the first (compiling) epoch dropped.
+
+Results: ``benchmarks/results/<device>-train_throughput.json`` and ``.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import time
+from typing import Any
+
+import jax
+import numpy as np
+
+import envs_mjx
+from benchmarks.peers.brax_ppo import run_brax_ppo
+from jaxrl_robot.agents.ppo import PPOConfig, make_trainer
+
+RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
+
+
+def device_label() -> str:
+    d = jax.devices()[0]
+    kind = d.device_kind if d.platform != "cpu" else f"cpu-{os.cpu_count()}core"
+    return f"{d.platform}-{kind}".replace(" ", "_").lower()
+
+
+def bench_ours(env: Any, lanes: int, unroll: int, chunk_iters: int, repeats: int, updates: int) -> dict[str, Any]:
+    """Steps/s of our PPO at ``lanes`` lanes (compile apart, median of repeats)."""
+    cfg = PPOConfig(
+        num_envs=lanes, unroll_length=unroll, minibatch_size=lanes * unroll // updates, actor_updates=updates,
+        critic_updates=updates, batch_norm=False, sigma=(0.5,), actor_hidden=(200, 200), critic_hidden=(200, 200),
+        total_steps=lanes * unroll * chunk_iters, episode_length=int(env.episode_length),
+    )  # fmt: skip
+    trainer = make_trainer(cfg, env, iterations_per_update=chunk_iters)
+    state = jax.block_until_ready(jax.jit(trainer.init)(jax.random.PRNGKey(0)))
+    t0 = time.perf_counter()
+    compiled = jax.jit(trainer.update).lower(state).compile()
+    compile_s = time.perf_counter() - t0
+    state, _ = jax.block_until_ready(compiled(state))  # warm-up
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        state, metrics = jax.block_until_ready(compiled(state))
+        times.append(time.perf_counter() - t)
+    med = statistics.median(times)
+    return {
+        "impl": "jaxrl_robot",
+        "lanes": lanes,
+        "unroll": unroll,
+        "steps_per_call": trainer.env_steps_per_update,
+        "compile_s": compile_s,
+        "times_s": times,
+        "median_s": med,
+        "steps_per_s": trainer.env_steps_per_update / med,
+    }
+
+
+def bench_brax(env: Any, lanes: int, unroll: int, chunk_iters: int, repeats: int, updates: int) -> dict[str, Any]:
+    out = run_brax_ppo(
+        env, num_envs=lanes, unroll_length=unroll, num_minibatches=updates, iterations_per_epoch=chunk_iters,
+        epochs=repeats, episode_length=int(env.episode_length),
+    )  # fmt: skip
+    return {"impl": "brax.ppo", "lanes": lanes, "unroll": unroll, "steps_per_s": out["timed_sps_median"], **out}
+
+
+def to_markdown(result: dict[str, Any]) -> str:
+    lines = [
+        f"# PPO training throughput on arm7 ({result['env_config']['mode']}) — {result['device']}",
+        "",
+        f"jax {result['jax']}, {result['date']}; N = {result['unroll']} steps per lane per iteration, "
+        f"{result['updates']} actor + {result['updates']} critic updates per iteration, {result['chunk_iters']} "
+        f"iterations per timed call, median of {result['repeats']}.",
+        "",
+        "| implementation | lanes | env-steps/s | compile s (brax: first epoch incl. compile) |",
+        "|---|---:|---:|---:|",
+    ]
+    for r in result["runs"]:
+        comp = r.get("compile_s", r.get("first_epoch_s", float("nan")))
+        lines.append(f"| {r['impl']} | {r['lanes']} | {r['steps_per_s']:,.0f} | {comp:.1f} |")
+    if result.get("ratio") is not None:
+        lines += ["", f"Ratio ours / brax at {result['ratio_lanes']} lanes: **{result['ratio']:.2f}x**; best ours / "
+                  f"brax: **{result['best_ratio']:.2f}x**."]  # fmt: skip
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    on_cpu = jax.default_backend() == "cpu"
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--lanes", type=int, nargs="+", default=[32, 128, 512] if on_cpu else [1024, 4096, 16384, 65536])
+    p.add_argument("--brax-lanes", type=int, nargs="*", default=None, help="lane counts for brax (default: ours'")
+    p.add_argument("--unroll", type=int, default=16)
+    p.add_argument("--updates", type=int, default=4)
+    p.add_argument("--chunk-iters", type=int, default=4)
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--mode", default=None, help="arm7 physics mode (default: kinematic on CPU, pd otherwise)")
+    p.add_argument("--no-brax", action="store_true")
+    p.add_argument("--out", default=RESULTS)
+    args = p.parse_args(argv)
+    mode = args.mode or ("kinematic" if on_cpu else "pd")
+    env = envs_mjx.make("arm7", mode=mode)
+    runs = []
+    for lanes in args.lanes:
+        r = bench_ours(env, lanes, args.unroll, args.chunk_iters, args.repeats, args.updates)
+        print(f"ours  lanes={lanes:6d}  {r['steps_per_s']:12,.0f} steps/s  compile {r['compile_s']:.1f}s", flush=True)
+        runs.append(r)
+    brax_lanes = args.lanes if args.brax_lanes is None else args.brax_lanes
+    if not args.no_brax:
+        for lanes in brax_lanes:
+            try:
+                r = bench_brax(env, lanes, args.unroll, args.chunk_iters, args.repeats, args.updates)
+            except Exception as e:  # a peer failure is recorded, not fatal
+                r = {"impl": "brax.ppo", "lanes": lanes, "steps_per_s": float("nan"), "error": repr(e)[:500]}
+            print(f"brax  lanes={lanes:6d}  {r['steps_per_s']:12,.0f} steps/s", flush=True)
+            runs.append(r)
+    result: dict[str, Any] = {
+        "benchmark": "train_throughput",
+        "device": device_label(),
+        "device_kind": jax.devices()[0].device_kind,
+        "jax": jax.__version__,
+        "host": platform.node(),
+        "date": time.strftime("%Y-%m-%d %H:%M"),
+        "env": "arm7",
+        "env_config": {"mode": mode},
+        "unroll": args.unroll,
+        "updates": args.updates,
+        "chunk_iters": args.chunk_iters,
+        "repeats": args.repeats,
+        "xla_flags": os.environ.get("XLA_FLAGS", ""),
+        "runs": runs,
+    }
+    ours = {r["lanes"]: r["steps_per_s"] for r in runs if r["impl"] == "jaxrl_robot"}
+    theirs = {r["lanes"]: r["steps_per_s"] for r in runs if r["impl"] == "brax.ppo" and np.isfinite(r["steps_per_s"])}
+    common = sorted(set(ours) & set(theirs))
+    if common:
+        lanes = common[-1]
+        result["ratio_lanes"] = lanes
+        result["ratio"] = ours[lanes] / theirs[lanes]
+        result["best_ratio"] = max(ours.values()) / max(theirs.values())
+        print(f"ratio ours/brax at {lanes} lanes: {result['ratio']:.2f}x; best/best {result['best_ratio']:.2f}x")
+    os.makedirs(args.out, exist_ok=True)
+    stem = os.path.join(args.out, f"{result['device']}-train_throughput")
+    with open(stem + ".json", "w") as f:
+        json.dump(result, f, indent=2)
+    with open(stem + ".md", "w") as f:
+        f.write(to_markdown(result))
+    print(to_markdown(result))
+    return result
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,140 @@
+"""``python -m train.ppo``: a tiny run by subprocess, resume = uninterrupted, bad input, the NaN guard."""
+
+import glob
+import json
+import os
+import subprocess
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxrl_robot.checkpoint import Checkpointer
+from jaxrl_robot.types import Trainer
+from train import common
+from train import ppo as ppo_cli
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+TINY = [
+    "--num-envs", "4", "--unroll-length", "8", "--minibatch-size", "16", "--actor-updates", "2",
+    "--critic-updates", "2", "--actor-hidden", "16", "--critic-hidden", "16",
+]  # fmt: skip
+
+
+def test_cli_learns_arm7_on_a_small_budget_and_writes_the_run_directory(tmp_path):
+    """The default command on a small budget: the run directory, the printed evaluation, and learning."""
+    cmd = [sys.executable, "-m", "train.ppo", "--env", "arm7", "--total-steps", "120000", "--chunks", "3",
+           "--eval-episodes", "50", "--out", str(tmp_path)]  # fmt: skip
+    env = {**os.environ, "PYTHONPATH": ROOT + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    (run_dir,) = glob.glob(str(tmp_path / "ppo-arm7-*"))
+    for name in ("config.json", "metrics.csv", "eval.json", "episode_reward.png", "success_rate.png"):
+        assert os.path.isfile(os.path.join(run_dir, name)), name
+    assert glob.glob(os.path.join(run_dir, "tb", "events.*"))
+    assert Checkpointer(os.path.join(run_dir, "checkpoints")).latest_step() == 3
+    with open(os.path.join(run_dir, "metrics.csv")) as f:
+        assert len(f.read().strip().splitlines()) == 4  # header + 3 chunks
+    assert "success_rate" in proc.stdout and "mean_extra_distance" in proc.stdout  # the printed table
+    config = json.load(open(os.path.join(run_dir, "config.json")))
+    assert config["args"]["env"] == "arm7" and config["args"]["preset"] in ("cpu", "fast")
+    result = json.load(open(os.path.join(run_dir, "eval.json")))
+    assert result["episodes"] == 50
+    # learning: a random policy reaches almost no goal; 120 k steps of the default preset reach most
+    assert result["success_rate"] >= 0.8, result
+
+
+RESUME_SCRIPT = """
+import json, sys
+from train import ppo
+out, tiny = sys.argv[1], json.loads(sys.argv[2])
+args = ["--env", "brax:fast", "--episode-length", "16", "--total-steps", "256", "--chunks", "4",
+        "--checkpoint-every", "1", "--eval-episodes", "2", "--seed", "7", *tiny]
+assert ppo.main([*args, "--out", out + "/a"]) == 0                              # uninterrupted
+assert ppo.main([*args, "--out", out + "/b", "--stop-after-steps", "128"]) == 0  # stopped half-way
+import glob, os
+run_b, = glob.glob(out + "/b/*")
+assert not os.path.exists(os.path.join(run_b, "eval.json"))
+assert ppo.main(["--resume", run_b]) == 0                                        # continued
+print("OK")
+"""
+
+
+def _final_checkpoint(run_dir):
+    ckpt = Checkpointer(os.path.join(run_dir, "checkpoints"))
+    return ckpt.restore(ckpt.latest_step())
+
+
+def test_resume_equals_uninterrupted(tmp_path):
+    # The three runs compile the same programs: a persistent compilation cache makes the 2nd and 3rd cheap.
+    env = {
+        **os.environ,
+        "PYTHONPATH": ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""),
+        "JAX_COMPILATION_CACHE_DIR": str(tmp_path / "jax_cache"),
+        "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0",
+        "JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES": "-1",
+    }
+    proc = subprocess.run([sys.executable, "-c", RESUME_SCRIPT, str(tmp_path), json.dumps(TINY)], cwd=ROOT, env=env,
+                          capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert proc.returncode == 0 and "OK" in proc.stdout, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert "resumed at chunk 2 (128 env steps)" in proc.stdout
+    (run_a,) = glob.glob(str(tmp_path / "a" / "*"))
+    (run_b,) = glob.glob(str(tmp_path / "b" / "*"))
+    sa, ra = _final_checkpoint(run_a)
+    sb, rb = _final_checkpoint(run_b)
+    assert ra["chunk"] == rb["chunk"] == 4
+    keys = ("actor_params", "critic_params", "actor_opt", "critic_opt", "obs_stats", "key", "iteration")
+    leaves_a = jax.tree.leaves({k: sa[k] for k in keys})
+    leaves_b = jax.tree.leaves({k: sb[k] for k in keys})
+    assert len(leaves_a) == len(leaves_b) > 10
+    for x, y in zip(leaves_a, leaves_b, strict=True):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    rows_b = open(os.path.join(run_b, "metrics.csv")).read().strip().splitlines()
+    assert len(rows_b) == 5  # header + 4 chunks, none repeated after the resume
+
+
+def test_bad_input_names_the_valid_choices(capsys):
+    assert ppo_cli.main(["--env", "nope"]) == 2
+    assert "unknown environment 'nope'; valid names: arm7" in capsys.readouterr().err
+    assert ppo_cli.main(["--env", "arm7", "--preset", "huge"]) == 2
+    assert "unknown preset 'huge'; valid presets: auto, thesis, cpu, fast" in capsys.readouterr().err
+    assert ppo_cli.main(["--env", "arm7", "--clip-eps", "2"]) == 2
+    assert "clip_eps=2.0 is out of range; allowed (0, 1)" in capsys.readouterr().err
+    assert ppo_cli.main(["--env", "arm7", "--reward", "fast"]) == 2
+    assert "reward='fast' is not valid" in capsys.readouterr().err
+    assert ppo_cli.main(["--resume", "/nonexistent/run"]) == 2
+    assert "not a run directory" in capsys.readouterr().err
+
+
+def _nan_trainer(bad_chunk: int) -> Trainer:
+    """A stand-in algorithm whose loss turns NaN in chunk ``bad_chunk`` (1-based)."""
+
+    def update(state):
+        count = state["count"] + 1
+        loss = jnp.where(count == bad_chunk, jnp.nan, 1.0 / count)
+        return {"count": count, "w": state["w"] + 1.0}, {"critic_loss": loss, "episode_return": jnp.nan}
+
+    return Trainer(
+        init=lambda key: {"count": jnp.zeros((), jnp.int32), "w": jnp.zeros(3)},
+        update=update,
+        policy=lambda state: (lambda obs: obs),
+        num_updates=10,
+        env_steps_per_update=100,
+    )
+
+
+def test_nan_guard_stops_naming_the_step_and_keeps_the_last_good_checkpoint(tmp_path):
+    spec = common.RunSpec(
+        algo="fake", env_name="none", env=None, trainer=_nan_trainer(bad_chunk=4), config={}, out=str(tmp_path),
+        checkpoint_every=100, progress=False,
+    )  # fmt: skip
+    with pytest.raises(common.NonFiniteLossError, match=r"critic_loss is nan after env step 400 \(chunk 4\)"):
+        common.run(spec)
+    (run_dir,) = glob.glob(str(tmp_path / "fake-none-*"))
+    ckpt = Checkpointer(os.path.join(run_dir, "checkpoints"))
+    assert ckpt.latest_step() == 3
+    state, record = ckpt.restore(3, {"count": jnp.zeros((), jnp.int32), "w": jnp.zeros(3)})
+    assert int(state["count"]) == 3 and record["env_steps"] == 300
+    np.testing.assert_array_equal(state["w"], 3.0)
