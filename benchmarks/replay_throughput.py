@@ -1,0 +1,316 @@
+"""Replay throughput: our uniform and prioritised buffers beside flashbax's prioritised buffer, and DDPG+HER.
+
+    python -m benchmarks.replay_throughput                       # capacity 10^6, batches 128 and 256
+    python -m benchmarks.replay_throughput --no-ddpg --batches 128
+
+Every buffer holds arm7's HER transition (obs 9, action 3, reward, next obs 9, termination: 23
+floats) at capacity ``--capacity`` (10^6), filled with ``--fill`` transitions with random
+priorities.  Each operation runs ``--inner`` times inside one jitted ``lax.scan`` (the way a
+training loop calls it, the buffer carried on the device) and is timed as the median of
+``--repeats`` calls after a compiling call (compile time reported apart); the table gives the
+cost of one operation:
+
+* ``add``: store one batch (new priorities = the maximum, as in PER);
+* ``sample``: draw one mini-batch with its data (and, for PER, probabilities and IS weights);
+* ``update``: write back the mini-batch's priorities (β annealed);
+* ``sample+update``: one PER learning step's replay work.
+
+Peers in the same run: our uniform ring buffer, our prioritised replay with a binary sum-tree
+(branching 2, Fig. 3.2), with branching 16 (the default) and 1024 (two levels for 10^6), and flashbax's
+``make_prioritised_item_buffer`` (an optional dependency: ``pip install -e .[bench]``).
+Goals (issue 5): prioritised sample + update ≤ 1.5 × uniform sample; ≥ 2 × faster than flashbax.
+
+With ``--ddpg``: DDPG + HER (future, k = 4, PER) on arm7, one cycle per timed call: the thesis's
+16 lanes × 100 steps with 40 updates of 128, and a many-lane cycle; env steps/s counts every
+lane step of the cycle, updates/s the gradient updates of the same cycle.
+
+Results: ``benchmarks/results/<device>-replay_throughput.json`` and ``.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import time
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+import envs_mjx  # noqa: F401  (configures XLA:CPU for MJX before the first computation)
+from jaxrl_robot.replay import Transition, make_prioritized_replay, make_uniform_replay
+
+RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
+
+
+def device_label() -> str:
+    d = jax.devices()[0]
+    kind = d.device_kind if d.platform != "cpu" else f"cpu-{os.cpu_count()}core"
+    return f"{d.platform}-{kind}".replace(" ", "_").lower()
+
+
+def transitions(key: jax.Array, n: int) -> Transition:
+    """``n`` random arm7-HER-shaped transitions."""
+    k = jax.random.split(key, 4)
+    return Transition(
+        obs=jax.random.normal(k[0], (n, 9)),
+        action=jax.random.uniform(k[1], (n, 3), minval=-1, maxval=1),
+        reward=-jnp.ones((n,)),
+        next_obs=jax.random.normal(k[2], (n, 9)),
+        terminated=jnp.zeros((n,)),
+    )
+
+
+def _time(fn: Callable, state: Any, repeats: int) -> tuple[float, float, Any]:
+    """(compile_s, median seconds per call, state); ``fn(state) -> state`` jitted with donation."""
+    jitted = jax.jit(fn, donate_argnums=0)
+    t0 = time.perf_counter()
+    compiled = jitted.lower(state).compile()
+    compile_s = time.perf_counter() - t0
+    state = jax.block_until_ready(compiled(state))
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        state = jax.block_until_ready(compiled(state))
+        times.append(time.perf_counter() - t)
+    return compile_s, statistics.median(times), state
+
+
+def _scan(op: Callable, inner: int) -> Callable:
+    """``state -> state`` running ``op(state, i)`` ``inner`` times under ``lax.scan``."""
+
+    def run(carry):
+        def body(c, i):
+            return op(c, i), None
+
+        return jax.lax.scan(body, carry, jnp.arange(inner))[0]
+
+    return run
+
+
+def _checksum(x: Any) -> jax.Array:
+    return sum(jnp.sum(leaf.astype(jnp.float32)) for leaf in jax.tree.leaves(x))
+
+
+def bench_ours(kind: str, capacity: int, batch: int, fill: int, inner: int, repeats: int) -> dict[str, Any]:
+    """Per-operation seconds of our uniform ('uniform') or prioritised ('per2', 'per16') buffer."""
+    if kind == "uniform":
+        buf = make_uniform_replay(capacity, batch)
+    else:
+        buf = make_prioritized_replay(capacity, batch, branching=int(kind[3:]))
+    items = transitions(jax.random.PRNGKey(0), batch)
+    state = buf.init(jax.tree.map(lambda x: x[0], items))
+    state = jax.jit(buf.add)(state, transitions(jax.random.PRNGKey(1), fill))
+    if kind != "uniform":
+        state = jax.jit(buf.update_priorities)(
+            state, jnp.arange(fill), jax.random.exponential(jax.random.PRNGKey(2), (fill,))
+        )
+    key = jax.random.PRNGKey(3)
+    acc = jnp.zeros(())
+    ops: dict[str, Callable] = {"add": lambda c, i: (buf.add(c[0], items), c[1])}
+
+    def sample(c, i):
+        s = buf.sample(jax.random.fold_in(key, i), c[0])
+        return c[0], c[1] + _checksum(s)
+
+    ops["sample"] = sample
+    if kind != "uniform":
+        td = jax.random.normal(jax.random.PRNGKey(4), (batch,))
+        idx = jax.random.randint(jax.random.PRNGKey(5), (batch,), 0, fill)
+
+        def update(c, i):
+            return buf.update_priorities(c[0], idx, td + i), c[1]
+
+        def sample_update(c, i):
+            s = buf.sample(jax.random.fold_in(key, i), c[0])
+            err = s.experience.reward * s.weights  # stands in for the TD error computed from the batch
+            return buf.update_priorities(c[0], s.indices, err + i), c[1] + _checksum(s.experience)
+
+        ops["update"] = update
+        ops["sample+update"] = sample_update
+    out: dict[str, Any] = {}
+    carry = (state, acc)
+    for name, op in ops.items():
+        compile_s, sec, carry = _time(_scan(op, inner), carry, repeats)
+        out[name] = {"us": sec / inner * 1e6, "compile_s": compile_s}
+    return out
+
+
+def bench_flashbax(capacity: int, batch: int, fill: int, inner: int, repeats: int) -> dict[str, Any]:
+    """The same operations on flashbax's prioritised item buffer (α = 0.6)."""
+    import flashbax as fbx
+
+    device = "gpu" if jax.default_backend() == "gpu" else ("tpu" if jax.default_backend() == "tpu" else "cpu")
+    buf = fbx.make_prioritised_item_buffer(
+        max_length=capacity, min_length=batch, sample_batch_size=batch, add_batches=True, priority_exponent=0.6,
+        device=device,
+    )  # fmt: skip
+    items = transitions(jax.random.PRNGKey(0), batch)
+    state = buf.init(jax.tree.map(lambda x: x[0], items))
+    add = jax.jit(buf.add, donate_argnums=0)
+    fill_items = transitions(jax.random.PRNGKey(1), fill)
+    t0 = time.perf_counter()
+    state = jax.block_until_ready(add(state, fill_items))
+    fill_s = time.perf_counter() - t0
+    state = jax.jit(buf.set_priorities)(state, jnp.arange(fill), jax.random.exponential(jax.random.PRNGKey(2), (fill,)))
+    key = jax.random.PRNGKey(3)
+
+    def sample(c, i):
+        s = buf.sample(c[0], jax.random.fold_in(key, i))
+        return c[0], c[1] + _checksum(s.experience)
+
+    td = jax.random.normal(jax.random.PRNGKey(4), (batch,))
+    idx = jax.random.randint(jax.random.PRNGKey(5), (batch,), 0, fill)
+
+    def update(c, i):
+        return buf.set_priorities(c[0], idx, jnp.abs(td + i) + 1e-6), c[1]
+
+    def sample_update(c, i):
+        s = buf.sample(c[0], jax.random.fold_in(key, i))
+        err = s.experience.reward / (s.probabilities + 1e-6)
+        return buf.set_priorities(c[0], s.indices, jnp.abs(err + i) + 1e-6), c[1] + _checksum(s.experience)
+
+    ops = {"add": lambda c, i: (buf.add(c[0], items), c[1]), "sample": sample, "update": update,
+           "sample+update": sample_update}  # fmt: skip
+    out: dict[str, Any] = {"fill_s": fill_s}
+    carry = (state, jnp.zeros(()))
+    for name, op in ops.items():
+        compile_s, sec, carry = _time(_scan(op, inner), carry, repeats)
+        out[name] = {"us": sec / inner * 1e6, "compile_s": compile_s}
+    return out
+
+
+def bench_ddpg(lanes: int, updates: int, batch: int, mode: str, repeats: int) -> dict[str, Any]:
+    """One DDPG+HER (future k=4, PER) cycle on arm7: env steps/s and updates/s of the same cycle."""
+    from jaxrl_robot.agents.ddpg import DDPGConfig, make_trainer
+
+    env = envs_mjx.make("arm7", reward="sparse", mode=mode)
+    cfg = DDPGConfig(epochs=1, cycles_per_epoch=1, num_envs=lanes, updates_per_cycle=updates, batch_size=batch,
+                     buffer_size=1_000_000, her="future", her_k=4, per=True, target_clip=(-10.0, 0.0),
+                     failure_value=-10.0)  # fmt: skip
+    trainer = make_trainer(cfg, env, iterations_per_update=1)
+    state = jax.block_until_ready(jax.jit(trainer.init)(jax.random.PRNGKey(0)))
+    t0 = time.perf_counter()
+    compiled = jax.jit(trainer.update, donate_argnums=0).lower(state).compile()
+    compile_s = time.perf_counter() - t0
+    state, _ = jax.block_until_ready(compiled(state))
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        state, _ = jax.block_until_ready(compiled(state))
+        times.append(time.perf_counter() - t)
+    med = statistics.median(times)
+    steps = trainer.env_steps_per_update
+    return {"lanes": lanes, "updates_per_cycle": updates, "batch": batch, "mode": mode, "compile_s": compile_s,
+            "cycle_s": med, "env_steps_per_s": steps / med, "updates_per_s": updates / med,
+            "transitions_per_cycle_max": steps * 5}  # fmt: skip
+
+
+def to_markdown(result: dict[str, Any]) -> str:
+    lines = [f"# Replay throughput on {result['device']} ({result['device_kind']})", "",
+             f"capacity {result['capacity']:,}, filled {result['fill']:,}; µs per operation (median of "
+             f"{result['repeats']} × {result['inner']} in one jitted scan); jax {result['jax']}", ""]  # fmt: skip
+    for batch, rows in result["ops"].items():
+        lines += [f"## batch {batch}", "", "| buffer | add | sample | update | sample+update |"]
+        lines += ["|---|---|---|---|---|"]
+        for impl, ops in rows.items():
+            if "error" in ops:
+                lines.append(f"| {impl} | {ops['error']} | | | |")
+                continue
+            cells = [f"{ops[o]['us']:.1f}" if o in ops else "—" for o in ("add", "sample", "update", "sample+update")]
+            lines.append(f"| {impl} | " + " | ".join(cells) + " |")
+        ratios = result["ratios"].get(batch, {})
+        lines += ["", *(f"- {k}: **{v:.2f}**" for k, v in ratios.items()), ""]
+    if result.get("ddpg"):
+        lines += ["## DDPG + HER (future k=4, PER) on arm7, one cycle", "",
+                  "| mode | lanes | updates × batch | cycle s | env steps/s | updates/s | compile s |",
+                  "|---|---|---|---|---|---|---|"]  # fmt: skip
+        for r in result["ddpg"]:
+            if "error" in r:
+                lines.append(f"| {r.get('mode')} | {r.get('lanes')} | error: {r['error']} | | | | |")
+                continue
+            lines.append(f"| {r['mode']} | {r['lanes']} | {r['updates_per_cycle']} × {r['batch']} | {r['cycle_s']:.3f} "
+                         f"| {r['env_steps_per_s']:,.0f} | {r['updates_per_s']:,.0f} | {r['compile_s']:.1f} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--capacity", type=int, default=1_000_000)
+    p.add_argument("--fill", type=int, default=1_000_000)
+    p.add_argument("--batches", type=int, nargs="+", default=[128, 256])
+    p.add_argument("--inner", type=int, default=100)
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--ddpg", action=argparse.BooleanOptionalAction, default=True)
+    p.add_argument("--ddpg-lanes", type=int, nargs="+", default=None)
+    p.add_argument("--mode", default=None, help="arm7 physics of the DDPG cycle (default: pd on GPU, else kinematic)")
+    p.add_argument("--branchings", type=int, nargs="+", default=[2, 16, 1024], help="sum-tree branching factors")
+    p.add_argument("--out", default=RESULTS)
+    args = p.parse_args(argv)
+    on_gpu = jax.default_backend() != "cpu"
+    result: dict[str, Any] = {
+        "device": device_label(), "device_kind": jax.devices()[0].device_kind, "jax": jax.__version__,
+        "host": platform.node(), "capacity": args.capacity, "fill": args.fill, "inner": args.inner,
+        "repeats": args.repeats, "ops": {}, "ratios": {},
+    }  # fmt: skip
+    for batch in args.batches:
+        rows: dict[str, Any] = {}
+        kinds = ["uniform", *(f"per{b}" for b in args.branchings)]
+        for kind in kinds:
+            rows[kind] = bench_ours(kind, args.capacity, batch, args.fill, args.inner, args.repeats)
+            print(batch, kind, {k: round(v["us"], 1) for k, v in rows[kind].items()}, flush=True)
+        try:
+            rows["flashbax"] = bench_flashbax(args.capacity, batch, args.fill, args.inner, args.repeats)
+            print(batch, "flashbax", {k: round(v["us"], 1) for k, v in rows["flashbax"].items() if k != "fill_s"},
+                  flush=True)
+        except Exception as e:  # an optional peer: record why it is missing
+            rows["flashbax"] = {"error": f"{type(e).__name__}: {e}"[:200]}
+            print(batch, "flashbax failed:", rows["flashbax"]["error"], flush=True)
+        result["ops"][str(batch)] = rows
+        uni = rows["uniform"]["sample"]["us"]
+        ratios = {}
+        for kind in kinds[1:]:
+            ratios[f"{kind} (sample+update) / uniform sample"] = rows[kind]["sample+update"]["us"] / uni
+            if "sample+update" in rows["flashbax"]:
+                ratios[f"flashbax / {kind} (sample+update)"] = (
+                    rows["flashbax"]["sample+update"]["us"] / rows[kind]["sample+update"]["us"]
+                )
+                ratios[f"flashbax / {kind} (add)"] = rows["flashbax"]["add"]["us"] / rows[kind]["add"]["us"]
+        result["ratios"][str(batch)] = ratios
+        save(result, args.out)  # partial results survive a time limit
+    if args.ddpg:
+        mode = args.mode or ("pd" if on_gpu else "kinematic")
+        lanes = args.ddpg_lanes or ([16, 1024, 4096] if on_gpu else [16, 128])
+        result["ddpg"] = []
+        for n in lanes:
+            updates, batch = (40, 128) if n == 16 else (max(40, n // 4), 1024)
+            try:
+                r = bench_ddpg(n, updates, batch, mode, args.repeats)
+            except Exception as e:
+                r = {"lanes": n, "mode": mode, "error": f"{type(e).__name__}: {e}"[:200]}
+            result["ddpg"].append(r)
+            print("ddpg", r, flush=True)
+            save(result, args.out)
+    md = save(result, args.out)
+    print(md)
+    return result
+
+
+def save(result: dict[str, Any], out: str) -> str:
+    """Write (or rewrite) the ``.json`` and ``.md`` results; returns the markdown."""
+    os.makedirs(out, exist_ok=True)
+    stem = os.path.join(out, f"{result['device']}-replay_throughput")
+    with open(stem + ".json", "w") as f:
+        json.dump(result, f, indent=2)
+    md = to_markdown(result)
+    with open(stem + ".md", "w") as f:
+        f.write(md)
+    return md
+
+
+if __name__ == "__main__":
+    main()
