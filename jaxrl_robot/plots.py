@@ -12,7 +12,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-__all__ = ["plot_training_curves", "plot_tracking"]
+__all__ = ["plot_staleness", "plot_training_curves", "plot_tracking", "plot_worker_curves"]
 
 _CURVES = (
     ("episode_return", "Episode reward", "episode_reward.png"),
@@ -90,3 +90,75 @@ def plot_tracking(
     fig.savefig(path2, dpi=100)
     plt.close(fig)
     return [path1, path2]
+
+
+def _column(rows: Sequence[Mapping[str, Any]], key: str) -> np.ndarray:
+    return np.array([float(r[key]) if r.get(key) not in ("", None) else np.nan for r in rows])
+
+
+def plot_worker_curves(
+    rows: Sequence[Mapping[str, Any]], out_dir: str, prefix: str = "worker_return_", name: str = "worker_rewards.png"
+) -> list[str]:
+    """Episode rewards of the individual workers against env steps (thesis Fig. 4.5, 4.7, 4.11, 4.13).
+
+    Args:
+      rows: metrics rows with ``env_steps`` and columns ``<prefix><worker>``.
+      out_dir: where the PNG goes.
+    Returns:
+      the written path, or nothing when no such column has a value.
+    """
+    if not rows:
+        return []
+    keys = sorted((k for k in rows[0] if k.startswith(prefix)), key=lambda k: int(k[len(prefix) :]))
+    steps = _column(rows, "env_steps")
+    curves = [(k[len(prefix) :], _column(rows, k)) for k in keys]
+    curves = [(w, y) for w, y in curves if not np.all(np.isnan(y))]
+    if not curves:
+        return []
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    for w, y in curves:
+        ok = ~np.isnan(y)
+        ax.plot(steps[ok], y[ok], label=f"worker {w}", lw=1)
+    ax.set_xlabel("environment steps")
+    ax.set_ylabel("episode reward")
+    ax.set_title("Episode rewards of different workers")
+    ax.legend(fontsize=7, ncol=2)
+    ax.grid(alpha=0.3)
+    path = os.path.join(out_dir, name)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return [path]
+
+
+def plot_staleness(rows: Sequence[Mapping[str, Any]], out_dir: str, name: str = "staleness.png") -> list[str]:
+    """Gradient staleness of asynchronous training: histogram over the run and mean per report.
+
+    Args:
+      rows: metrics rows with ``staleness_hist_<lower edge>`` shares, ``applied_gradients`` and
+        ``staleness_mean`` per report (A3C).
+      out_dir: where the PNG goes.
+    Returns:
+      the written path, or nothing without staleness histogram columns.
+    """
+    prefix = "staleness_hist_"
+    if not rows or not any(k.startswith(prefix) for k in rows[0]):
+        return []
+    keys = sorted((k for k in rows[0] if k.startswith(prefix)), key=lambda k: int(k[len(prefix) :]))
+    weights = _column(rows, "applied_gradients")
+    shares = np.stack([_column(rows, k) for k in keys], axis=1)
+    total = np.nansum(shares * weights[:, None], axis=0) / max(np.nansum(weights), 1.0)
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(9, 3.5))
+    ax1.bar([k[len(prefix) :] for k in keys], total)
+    ax1.set_xlabel("staleness (global updates since the worker's sync; bin lower edge)")
+    ax1.set_ylabel("share of applied gradients")
+    ax1.set_title("Gradient delay")
+    ax2.plot(_column(rows, "env_steps"), _column(rows, "staleness_mean"))
+    ax2.set_xlabel("environment steps")
+    ax2.set_ylabel("mean staleness")
+    ax2.grid(alpha=0.3)
+    path = os.path.join(out_dir, name)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return [path]

@@ -287,7 +287,7 @@ def test_a3c_trainer_reports_the_hand_worked_staleness(a3c_k3):
         assert float(m["staleness_hist_2"]) == 1.0
     assert float(m["applied_gradients"]) == 3.0
     # every lane took its first step; lanes idle after an episode end
-    assert 3 <= float(m["env_steps"]) <= 12
+    assert 3 <= float(m["steps_taken"]) <= 12
     assert int(update._cache_size()) == 1  # no recompilation
 
 
@@ -310,7 +310,7 @@ def _one_worker_runs(rounds, chunks):
 def test_a3c_with_one_worker_equals_a2c_with_one_worker():
     (p2, m2), (p3, m3) = _one_worker_runs(rounds=6, chunks=2)
     jax.tree.map(lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6), p2, p3)
-    for k in ("episode_return", "critic_loss", "env_steps", "reward"):
+    for k in ("episode_return", "critic_loss", "steps_taken", "reward"):
         np.testing.assert_allclose(m2[k], m3[k], rtol=1e-5)
     assert float(m3["staleness_mean"]) == 0.0
     assert float(m2["episodes"]) >= 2  # episodes ended inside the rounds (short buffers exercised)

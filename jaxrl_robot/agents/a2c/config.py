@@ -26,7 +26,7 @@ class A2CConfig:
 
     total_steps: int = 400_000
     """Environment step slots of the whole run, K * N per round (rounded up to whole chunks).
-    Lanes idle after an early episode end, so the steps taken (metric ``env_steps``) can be fewer."""
+    Lanes idle after an early episode end, so the steps taken (metric ``steps_taken``) can be fewer."""
     num_envs: int = 4
     """K: parallel lanes (workers); a multiple of the device count."""
     unroll_length: int = 8
@@ -56,7 +56,8 @@ class A2CConfig:
     consecutive steps, as each thesis worker normalises its local buffer) or 'update' (all
     transitions behind one applied gradient: A2C all K·N, A3C the worker's lanes)."""
     normalize_advantages: bool = False
-    """Standardise each lane's advantages over its buffer (not in the thesis)."""
+    """Standardise the advantages over all transitions behind one applied gradient (A2C: the
+    round's K·N; A3C: the worker's buffers) — not in the thesis."""
     max_grad_norm: float = 0.0
     """Clip every applied gradient to this global norm (0: no clipping)."""
     reward_scale: float = 1.0

@@ -171,7 +171,7 @@ def make_networks(config: A2CConfig, action_size: int) -> tuple[GaussianActor, C
 
 
 def make_worker_loss(
-    config: A2CConfig, actor: GaussianActor, critic: Critic
+    config: A2CConfig, actor: GaussianActor, critic: Critic, axis_name: str | None = None
 ) -> Callable[[tuple[Any, Any], Any, Buffer], tuple[jax.Array, tuple[Any, Metrics]]]:
     """``worker_loss((actor_params, critic_params), actor_stats, buffer [N, L]) -> (loss, (new_stats, info))``.
 
@@ -180,7 +180,9 @@ def make_worker_loss(
     parameters is the mean over lanes of ``(-g_π, g_v)`` of Algorithm 3, lines 15-16 (the two
     parameter sets are disjoint, so each gets only its own loss's gradient). ``new_stats`` are
     the actor's batch-norm moving averages after normalising the buffer — per lane and then
-    averaged (``bn_batch='lane'``) or over all ``L · N`` transitions (``'update'``).
+    averaged (``bn_batch='lane'``) or over all ``L · N`` transitions (``'update'``). With
+    ``normalize_advantages`` the advantages are standardised over all filled slots of the
+    buffer, pooled over the mapped axis ``axis_name`` if given (A2C's devices).
     """
     per_lane = dict(in_axes=(1, 1, 1, 1, 1, None), out_axes=1)
 
@@ -199,8 +201,12 @@ def make_worker_loss(
         adv = targets - jax.lax.stop_gradient(values)
         counts = jnp.maximum(jnp.sum(mask, axis=0), 1.0)  # [L]
         if config.normalize_advantages:
-            mu = jnp.sum(adv * mask, axis=0) / counts
-            std = jnp.sqrt(jnp.sum(((adv - mu) * mask) ** 2, axis=0) / counts)
+            # over every filled slot behind this gradient (all devices' lanes for A2C)
+            total = jnp.stack([jnp.sum(mask), jnp.sum(adv * mask), jnp.sum(adv**2 * mask)])
+            if axis_name is not None:
+                total = jax.lax.psum(total, axis_name)
+            mu = total[1] / total[0]
+            std = jnp.sqrt(jnp.maximum(total[2] / total[0] - mu**2, 0.0))
             adv = (adv - mu) / (std + 1e-8)
         if config.bn_batch == "lane":
             lane_actor = lambda o, m: apply_actor(actor, actor_params, actor_stats, o, train=True, mask=m)
@@ -298,7 +304,7 @@ def make_trainer(
     actor, critic = make_networks(config, action_size)
     actor_tx = _optimizer(config.actor_lr, config.max_grad_norm)
     critic_tx = _optimizer(config.critic_lr, config.max_grad_norm)
-    worker_loss = make_worker_loss(config, actor, critic)
+    worker_loss = make_worker_loss(config, actor, critic, axis_name=None if asynchronous else _LANES)
     steps_per_iteration = K * N
     total_iterations = max(1, math.ceil(config.total_steps / steps_per_iteration))
     num_updates = math.ceil(total_iterations / iterations_per_update)
@@ -432,7 +438,7 @@ def make_trainer(
         steps = jnp.sum(buf.mask)
         metrics = {k: parallel.pmean(v) for k, v in info.items()}
         metrics["reward"] = parallel.psum(jnp.sum(traj.reward * buf.mask)) / parallel.psum(steps)
-        metrics["env_steps"] = parallel.psum(steps)
+        metrics["steps_taken"] = parallel.psum(steps)
         sums, lane_returns, lane_episodes = _lane_episode_sums(traj)
         return state, (metrics, sums, lane_returns, lane_episodes, staleness)
 
@@ -441,7 +447,7 @@ def make_trainer(
             lambda s, _: iteration(s), state, None, length=iterations_per_update
         )
         out = {k: jnp.mean(v) for k, v in metrics.items()}
-        out["env_steps"] = jnp.sum(metrics["env_steps"])
+        out["steps_taken"] = jnp.sum(metrics["steps_taken"])
         sums = parallel.psum(jax.tree.map(lambda x: jnp.sum(x, axis=0), sums))
         episodes = sums.pop("episodes")
         out["episodes"] = episodes
