@@ -6,6 +6,8 @@ replay buffers and evaluation helpers, designed to be imported into other JAX co
 
 __version__ = "0.1.0"
 
+from jaxrl_robot.agents import a2c  # noqa: E402
+from jaxrl_robot.agents.a2c import A2CConfig, A3CConfig  # noqa: E402
 from jaxrl_robot.networks import (  # noqa: E402
     Critic,
     GaussianActor,
@@ -32,4 +34,8 @@ __all__ = [
     "gaussian_kl",
     "gaussian_log_prob",
     "gaussian_sample",
+    # A2C / A3C (thesis §4.1): jaxrl_robot.a2c.make_train(A2CConfig() or A3CConfig(), env)
+    "a2c",
+    "A2CConfig",
+    "A3CConfig",
 ]
