@@ -245,6 +245,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--batches", type=int, nargs="+", default=[128, 256])
     p.add_argument("--inner", type=int, default=100)
     p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--replay", action=argparse.BooleanOptionalAction, default=True, help="the buffer operations")
     p.add_argument("--ddpg", action=argparse.BooleanOptionalAction, default=True)
     p.add_argument("--ddpg-lanes", type=int, nargs="+", default=None)
     p.add_argument("--mode", default=None, help="arm7 physics of the DDPG cycle (default: pd on GPU, else kinematic)")
@@ -257,7 +258,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "host": platform.node(), "capacity": args.capacity, "fill": args.fill, "inner": args.inner,
         "repeats": args.repeats, "ops": {}, "ratios": {},
     }  # fmt: skip
-    for batch in args.batches:
+    for batch in args.batches if args.replay else []:
         rows: dict[str, Any] = {}
         kinds = ["uniform", *(f"per{b}" for b in args.branchings)]
         for kind in kinds:
@@ -284,7 +285,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         save(result, args.out)  # partial results survive a time limit
     if args.ddpg:
         mode = args.mode or ("pd" if on_gpu else "kinematic")
-        lanes = args.ddpg_lanes or ([16, 1024, 4096] if on_gpu else [16, 128])
+        lanes = args.ddpg_lanes or ([16, 1024] if on_gpu else [16, 128])
         result["ddpg"] = []
         for n in lanes:
             updates, batch = (40, 128) if n == 16 else (max(40, n // 4), 1024)
