@@ -12,6 +12,7 @@ import os
 from typing import Any
 
 import jax
+import numpy as np
 import orbax.checkpoint as ocp
 
 __all__ = ["Checkpointer"]
@@ -31,7 +32,12 @@ class Checkpointer:
         self._manager = ocp.CheckpointManager(self.directory, options=options, item_names=("state", "record"))
 
     def save(self, step: int, state: Any, record: dict[str, Any]) -> None:
-        """Write the checkpoint of ``step`` (overwrites nothing: a step is saved once)."""
+        """Write the checkpoint of ``step`` (overwrites nothing: a step is saved once).
+
+        Zero-size arrays (e.g. empty fields of MJX's ``Data``) are stored as ``None``: orbax
+        cannot write them, and :meth:`restore` takes them back from ``target``.
+        """
+        state = jax.tree.map(lambda x: x if np.size(x) else None, state)
         args = ocp.args.Composite(state=ocp.args.StandardSave(state), record=ocp.args.JsonSave(record))
         self._manager.save(int(step), args=args, force=True)
         self._manager.wait_until_finished()
@@ -48,10 +54,17 @@ class Checkpointer:
 
         Without ``target`` the state comes back as saved: nested dicts of arrays.
         """
-        abstract = None if target is None else jax.tree.map(ocp.utils.to_shape_dtype_struct, target)
+        abstract = None
+        if target is not None:
+            abstract = jax.tree.map(lambda x: ocp.utils.to_shape_dtype_struct(x) if np.size(x) else None, target)
         args = ocp.args.Composite(state=ocp.args.StandardRestore(abstract), record=ocp.args.JsonRestore())
         out = self._manager.restore(int(step), args=args)
-        return out["state"], dict(out["record"])
+        state = out["state"]
+        if target is not None:
+            leaves, treedef = jax.tree.flatten(target)
+            restored = jax.tree.leaves(state, is_leaf=lambda x: x is None)
+            state = jax.tree.unflatten(treedef, [t if r is None else r for t, r in zip(leaves, restored, strict=True)])
+        return state, dict(out["record"])
 
     def close(self) -> None:
         self._manager.close()

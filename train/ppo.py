@@ -150,7 +150,7 @@ def _args_from_saved(run_dir: str, argv_args: Args) -> Args:
     ppo = dict(saved["ppo"])
     for k in ("sigma", "actor_hidden", "critic_hidden"):
         ppo[k] = tuple(ppo[k])
-    ppo["schedule"] = tuple((s, n, tuple(v)) for s, n, v in ppo["schedule"])
+    ppo["schedule"] = tuple((s, n, v) for s, n, v in ppo["schedule"])
     a["env_config"] = tuple(a.get("env_config", ()))
     a["resume"] = run_dir
     a["stop_after_steps"] = argv_args.stop_after_steps

@@ -46,7 +46,7 @@ def tracking_schedule(rsi_end: float = 2 / 3, narrow_end: float = 5 / 6) -> tupl
     stages = ((0.0, 0.0, 1.0, 20.0), (rsi_end, 0.25, 0.5, 15.0), (narrow_end, 0.0, 0.25, 10.0))
     out = []
     for start, lo, hi, limit in stages:
-        out += [(start, "start_lo", (lo,)), (start, "start_hi", (hi,)), (start, "et_limit", (limit,))]
+        out += [(start, "start_lo", lo), (start, "start_hi", hi), (start, "et_limit", limit)]
     return tuple(out)
 
 

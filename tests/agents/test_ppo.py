@@ -129,7 +129,7 @@ TOY = PPOConfig(
     normalize_obs=True,
     objective="kl",
     kl_target=1e-3,
-    schedule=((0.0, "offset", (0.0,)), (0.5, "offset", (5.0,))),
+    schedule=((0.0, "offset", 0.0), (0.5, "offset", 5.0)),
 )
 
 
@@ -179,7 +179,7 @@ def test_schedule_writes_episode_parameters_by_progress(toy):
 
 
 def test_schedule_rejects_unknown_parameter():
-    bad = TOY.replace(schedule=((0.0, "window", (1.0,)),))
+    bad = TOY.replace(schedule=((0.0, "window", 1.0),))
     with pytest.raises(ConfigError, match="unknown episode parameter 'window'.*offset"):
         make_trainer(bad, Line())
 

@@ -75,10 +75,11 @@ class PPOConfig:
     """Multiply rewards by this before computing returns."""
     episode_length: int = 0
     """Time limit in steps (0: the environment's own ``episode_length``)."""
-    schedule: tuple[tuple[float, str, tuple[float, ...]], ...] = ()
+    schedule: tuple[tuple[float, str, float], ...] = ()
     """Episode-parameter schedule: entries (start fraction of training, name in
-    state.info["params"], value); from each start on, the parameter takes the value (e.g. the
-    RSI window and the early-termination limit of the tracking envs, SPEC §E5)."""
+    state.info["params"], value); from each start on, the parameter takes the value, broadcast
+    to its shape (e.g. the RSI window and the early-termination limit of the tracking envs,
+    SPEC §E5). On the command line: --schedule 0 et_limit 20 0.5 et_limit 15 ..."""
 
     def validate(self) -> PPOConfig:
         """Raise ``ConfigError`` naming the first invalid field; return self."""
@@ -118,8 +119,9 @@ class PPOConfig:
             )
         for i, entry in enumerate(self.schedule):
             if len(entry) != 3:
-                raise ConfigError(f"schedule[{i}]={entry!r} must be (start_fraction, name, values)")
+                raise ConfigError(f"schedule[{i}]={entry!r} must be (start_fraction, name, value)")
             check_range(f"schedule[{i}].start", entry[0], 0.0, 1.0)
+            check_range(f"schedule[{i}].value", entry[2])
         return self
 
     def replace(self, **changes) -> PPOConfig:

@@ -116,8 +116,7 @@ def _schedule_tables(config: PPOConfig, env: Env) -> dict[str, tuple[np.ndarray,
         if name not in defaults:
             valid = ", ".join(sorted(defaults)) or "none"
             raise ConfigError(f"schedule: unknown episode parameter {name!r}; this env's parameters: {valid}")
-        shape = np.shape(defaults[name])
-        val = np.asarray(value, np.float32).reshape(shape)
+        val = np.broadcast_to(np.asarray(value, np.float32), np.shape(defaults[name]))
         tables.setdefault(name, []).append((float(start), val))
     out = {}
     for name, entries in tables.items():
