@@ -97,8 +97,8 @@ def ppo_preset(name: str, env_name: str, episode_length: int, action_size: int) 
             # statistics) drift apart and learning oscillated (89 % vs 100 % test success at 300 k steps).
             "cpu": dict(num_envs=32, unroll_length=16, minibatch_size=256, actor_updates=8, critic_updates=8,
                         actor_lr=3e-4, critic_lr=1e-3, batch_norm=False, total_steps=400_000),
-            "fast": dict(num_envs=4096, unroll_length=16, minibatch_size=16384, actor_updates=4, critic_updates=4,
-                         actor_lr=1e-3, critic_lr=1e-3, batch_norm=False, total_steps=20_000_000),
+            "fast": dict(num_envs=4096, unroll_length=8, minibatch_size=8192, actor_updates=8, critic_updates=8,
+                         actor_lr=1e-3, critic_lr=1e-3, batch_norm=False, total_steps=12_000_000),
         }
     elif family == "tracking":
         # Table 5.3 and §5.5: 256-unit nets, σ = [0.1, 0.01] (unicycle), RSI + early termination.
