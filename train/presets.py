@@ -221,7 +221,7 @@ def ddpg_preset(name: str, env_name: str, episode_length: int, reward: str | Non
         )
         presets = {
             "thesis": {},
-            "cpu": dict(num_envs=4, unroll_length=8, updates_per_iteration=8),
+            "cpu": dict(num_envs=4, unroll_length=8, updates_per_iteration=32),
             "fast": dict(num_envs=256, unroll_length=4, updates_per_iteration=32, batch_size=256,
                          buffer_size=1_000_000, total_steps=20_000 * episode_length),
         }
