@@ -6,8 +6,10 @@ replay buffers and evaluation helpers, designed to be imported into other JAX co
 
 __version__ = "0.1.0"
 
-from jaxrl_robot.agents import a2c  # noqa: E402
+from jaxrl_robot.agents import a2c, ppo  # noqa: E402
 from jaxrl_robot.agents.a2c import A2CConfig, A3CConfig  # noqa: E402
+from jaxrl_robot.agents.ppo import PPOConfig  # noqa: E402
+from jaxrl_robot.evaluation import run_test_episodes, summarize_episodes, tracking_error_sums  # noqa: E402
 from jaxrl_robot.networks import (  # noqa: E402
     Critic,
     GaussianActor,
@@ -16,8 +18,12 @@ from jaxrl_robot.networks import (  # noqa: E402
     gaussian_kl,
     gaussian_log_prob,
     gaussian_sample,
+    init_running_stats,
+    normalize,
+    update_running_stats,
 )
 from jaxrl_robot.returns import gae, lambda_returns, n_step_returns, td_errors  # noqa: E402
+from jaxrl_robot.types import RunningStats, Trainer, Transition  # noqa: E402
 
 __all__ = [
     "__version__",
@@ -34,6 +40,20 @@ __all__ = [
     "gaussian_kl",
     "gaussian_log_prob",
     "gaussian_sample",
+    "init_running_stats",
+    "normalize",
+    "update_running_stats",
+    # shared types: a Trainer is what train/common.py drives
+    "RunningStats",
+    "Trainer",
+    "Transition",
+    # evaluation
+    "run_test_episodes",
+    "summarize_episodes",
+    "tracking_error_sums",
+    # PPO (thesis ch. 5): jaxrl_robot.ppo.make_train(PPOConfig(), env)
+    "ppo",
+    "PPOConfig",
     # A2C / A3C (thesis §4.1): jaxrl_robot.a2c.make_train(A2CConfig() or A3CConfig(), env)
     "a2c",
     "A2CConfig",
