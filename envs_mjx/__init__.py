@@ -10,7 +10,11 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
-from envs_mjx.base import (
+from envs_mjx import xla as _xla
+
+_xla.configure()  # before the first JAX computation: keeps MJX physics fast on XLA:CPU (envs_mjx/xla.py)
+
+from envs_mjx.base import (  # noqa: E402
     AutoResetWrapper,
     EpisodeWrapper,
     RobotEnv,
@@ -18,7 +22,7 @@ from envs_mjx.base import (
     sanitize_action,
     wrap_for_training,
 )
-from envs_mjx.config import ConfigError
+from envs_mjx.config import ConfigError  # noqa: E402
 
 # name -> "module:Class"; imported lazily so that `names()` costs nothing.
 _REGISTRY: dict[str, str] = {

@@ -1,0 +1,95 @@
+"""Keeping MJX fast on XLA:CPU.
+
+On the CPU, XLA's algebraic simplifier (the HLO pass ``algsimp``) rewrites MJX's many small
+quaternion and matrix products into element-wise arithmetic, which the CPU fusion emitters then
+fuse into loop nests that recompute each link's transform for every element that uses it: the
+cost of ``mjx.kinematics`` grows about tenfold per link of a serial chain.  For this package's
+7-link arm (``benchmarks/results/*env_throughput*``) ``mjx.kinematics`` ran ~160 calls/s at 256
+lanes with XLA's defaults and ~1.1 M/s with the pass disabled; ``mjx.step`` improved ~150-fold.
+GPUs are not affected.  No narrower XLA option helped as much (``xla_cpu_use_fusion_emitters=false``
+fixes kinematics but compiles ``mjx.step`` 2-3x slower and runs it at half the speed).
+
+What this package does about it:
+
+1. Kinematics and inverse kinematics are written in plain JAX (``envs_mjx/ik.py``), which XLA
+   compiles well with any flags, so ``arm7``'s ``kinematic`` mode is fast everywhere.
+2. MJX physics (``arm7``'s ``pd`` mode) needs the pass disabled on the CPU:
+
+   * :func:`configure` runs when ``envs_mjx`` is imported.  On a host with no accelerator plugin
+     (or with ``JAX_PLATFORMS=cpu``) whose JAX backend has not started yet, it appends
+     ``--xla_disable_hlo_passes=algsimp`` to ``XLA_FLAGS`` (read once, when the first JAX
+     computation initialises the backend).  Set ``ENVS_MJX_XLA_CPU_FIX=0`` to leave XLA alone.
+   * :func:`compiler_options` / :func:`jit` apply the same setting to one computation
+     (``jax.jit(f, compiler_options=...)``), which works after the backend has started and only
+     on the CPU backend; use them when ``envs_mjx`` could not be imported first.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import pkgutil
+from collections.abc import Callable
+from typing import Any
+
+import jax
+
+__all__ = ["CPU_FLAG", "OPT_OUT_ENV", "compiler_options", "configure", "flag_active", "jit"]
+
+CPU_FLAG = "--xla_disable_hlo_passes=algsimp"
+OPT_OUT_ENV = "ENVS_MJX_XLA_CPU_FIX"
+_OPTIONS = {"xla_disable_hlo_passes": "algsimp"}
+
+
+def _backends_started() -> bool:
+    try:
+        from jax._src import xla_bridge
+
+        return bool(xla_bridge.backends_are_initialized())
+    except Exception:  # an unknown JAX layout: assume started, never touch XLA_FLAGS late
+        return True
+
+
+def _accelerator_possible() -> bool:
+    """Whether JAX may pick a GPU/TPU: a platform other than cpu requested, or a plugin installed."""
+    platforms = os.environ.get("JAX_PLATFORMS", "") or str(jax.config.jax_platforms or "")
+    if platforms:
+        return platforms.split(",")[0].strip().lower() != "cpu"
+    try:
+        import jax_plugins
+
+        if any(True for _ in pkgutil.iter_modules(jax_plugins.__path__)):
+            return True
+    except ImportError:
+        pass
+    return importlib.util.find_spec("libtpu") is not None
+
+
+def configure() -> bool:
+    """Disable ``algsimp`` for the CPU backend if it is safe and not too late; True if this call set it."""
+    if os.environ.get(OPT_OUT_ENV, "1").strip() == "0":
+        return False
+    flags = os.environ.get("XLA_FLAGS", "")
+    if "xla_disable_hlo_passes" in flags or _backends_started() or _accelerator_possible():
+        return False
+    os.environ["XLA_FLAGS"] = f"{flags} {CPU_FLAG}".strip()
+    return True
+
+
+def flag_active() -> bool:
+    """Whether ``XLA_FLAGS`` disables ``algsimp`` (meaningful once the backend has started)."""
+    flags = os.environ.get("XLA_FLAGS", "")
+    return "xla_disable_hlo_passes" in flags and "algsimp" in flags
+
+
+def compiler_options(backend: str | None = None) -> dict[str, Any]:
+    """Per-computation XLA options that keep MJX fast: ``{"xla_disable_hlo_passes": "algsimp"}`` on
+    the CPU backend (``backend`` or JAX's default), ``{}`` elsewhere."""
+    backend = backend or jax.default_backend()
+    return dict(_OPTIONS) if backend == "cpu" else {}
+
+
+def jit(fun: Callable, **kwargs: Any) -> Callable:
+    """``jax.jit(fun, **kwargs)`` with :func:`compiler_options` merged in (CPU only)."""
+    options = {**compiler_options(), **kwargs.pop("compiler_options", {})}
+    return jax.jit(fun, compiler_options=options or None, **kwargs)
