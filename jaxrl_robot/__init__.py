@@ -6,8 +6,10 @@ replay buffers and evaluation helpers, designed to be imported into other JAX co
 
 __version__ = "0.1.0"
 
-from jaxrl_robot.agents import a2c, ppo  # noqa: E402
+from jaxrl_robot import noise, replay  # noqa: E402
+from jaxrl_robot.agents import a2c, ddpg, ppo  # noqa: E402
 from jaxrl_robot.agents.a2c import A2CConfig, A3CConfig  # noqa: E402
+from jaxrl_robot.agents.ddpg import DDPGConfig  # noqa: E402
 from jaxrl_robot.agents.ppo import PPOConfig  # noqa: E402
 from jaxrl_robot.evaluation import run_test_episodes, summarize_episodes, tracking_error_sums  # noqa: E402
 from jaxrl_robot.networks import (  # noqa: E402
@@ -22,6 +24,8 @@ from jaxrl_robot.networks import (  # noqa: E402
     normalize,
     update_running_stats,
 )
+from jaxrl_robot.noise import make_gaussian_noise, make_ou_noise  # noqa: E402
+from jaxrl_robot.replay import make_her, make_prioritized_replay, make_uniform_replay  # noqa: E402
 from jaxrl_robot.returns import gae, lambda_returns, n_step_returns, td_errors  # noqa: E402
 from jaxrl_robot.types import RunningStats, Trainer, Transition  # noqa: E402
 
@@ -58,4 +62,15 @@ __all__ = [
     "a2c",
     "A2CConfig",
     "A3CConfig",
+    # DDPG (thesis ch. 3): jaxrl_robot.ddpg.make_train(DDPGConfig(her="future"), env)
+    "ddpg",
+    "DDPGConfig",
+    # replay memories (§3.1-3.3) and exploration noise (Eq. 3.8); more in jaxrl_robot.replay / .noise
+    "replay",
+    "make_uniform_replay",
+    "make_prioritized_replay",
+    "make_her",
+    "noise",
+    "make_ou_noise",
+    "make_gaussian_noise",
 ]
