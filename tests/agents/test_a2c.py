@@ -323,6 +323,8 @@ def test_config_errors_name_the_field():
         A3CConfig(lanes_per_worker=3).validate()
     with pytest.raises(ConfigError, match=r"gamma=1.5 is out of range"):
         A2CConfig(gamma=1.5).validate()
+    with pytest.raises(ConfigError, match="lr_schedule='cosine'.*'constant', 'linear'"):
+        A2CConfig(lr_schedule="cosine").validate()
     with pytest.raises(ConfigError, match="bn_batch='all'.*'update', 'lane'"):
         A2CConfig(bn_batch="all").validate()
     with pytest.raises(ConfigError, match="sigma"):

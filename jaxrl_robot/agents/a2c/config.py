@@ -7,10 +7,11 @@ from dataclasses import dataclass
 
 from envs_mjx.config import ConfigError, check_choice, check_range
 
-__all__ = ["BN_BATCHES", "PUSH_ORDERS", "A2CConfig", "A3CConfig"]
+__all__ = ["BN_BATCHES", "LR_SCHEDULES", "PUSH_ORDERS", "A2CConfig", "A3CConfig"]
 
 PUSH_ORDERS = ("random", "fixed")
 BN_BATCHES = ("update", "lane")
+LR_SCHEDULES = ("constant", "linear")
 
 
 @dataclass(frozen=True)
@@ -35,6 +36,8 @@ class A2CConfig:
     """Adam learning rate of the actor (α_π, Table 4.2)."""
     critic_lr: float = 2e-4
     """Adam learning rate of the critic (α_v, Table 4.2)."""
+    lr_schedule: str = "constant"
+    """Learning rates 'constant' (the thesis) or 'linear' (annealed to 0 over the run's applied gradients)."""
     entropy_coef: float = 0.01
     """β, the entropy regularisation of Eq. 4.4 (no effect on the gradient while σ is fixed)."""
     gamma: float = 0.9
@@ -74,6 +77,7 @@ class A2CConfig:
                 raise ConfigError(f"{name}={value!r} must be an integer")
         check_range("actor_lr", self.actor_lr, 0.0, lo_open=True)
         check_range("critic_lr", self.critic_lr, 0.0, lo_open=True)
+        check_choice("lr_schedule", self.lr_schedule, LR_SCHEDULES)
         check_range("entropy_coef", self.entropy_coef, 0.0)
         check_range("gamma", self.gamma, 0.0, 1.0)
         check_range("bn_momentum", self.bn_momentum, 0.0, 1.0, hi_open=True)

@@ -238,8 +238,10 @@ def make_worker_loss(
     return worker_loss
 
 
-def _optimizer(lr: float, max_grad_norm: float) -> optax.GradientTransformation:
-    adam = optax.adam(lr)
+def _optimizer(lr: float, max_grad_norm: float, schedule: str, total_updates: int) -> optax.GradientTransformation:
+    """Adam at ``lr`` (``'linear'``: annealed to 0 over ``total_updates`` applied gradients)."""
+    rate = optax.linear_schedule(lr, 0.0, total_updates) if schedule == "linear" else lr
+    adam = optax.adam(rate)
     return optax.chain(optax.clip_by_global_norm(max_grad_norm), adam) if max_grad_norm > 0 else adam
 
 
@@ -302,12 +304,13 @@ def make_trainer(
     wrapped = wrap_for_training(env, episode_length=int(episode_length))
     obs_size, action_size = int(env.observation_size), int(env.action_size)
     actor, critic = make_networks(config, action_size)
-    actor_tx = _optimizer(config.actor_lr, config.max_grad_norm)
-    critic_tx = _optimizer(config.critic_lr, config.max_grad_norm)
     worker_loss = make_worker_loss(config, actor, critic, axis_name=None if asynchronous else _LANES)
     steps_per_iteration = K * N
     total_iterations = max(1, math.ceil(config.total_steps / steps_per_iteration))
     num_updates = math.ceil(total_iterations / iterations_per_update)
+    applied = num_updates * iterations_per_update * W  # global updates of the whole run
+    actor_tx = _optimizer(config.actor_lr, config.max_grad_norm, config.lr_schedule, applied)
+    critic_tx = _optimizer(config.critic_lr, config.max_grad_norm, config.lr_schedule, applied)
     momentum = config.bn_momentum
     if asynchronous:
         max_staleness = (W - 1) if config.push_order == "fixed" else 2 * (W - 1)
