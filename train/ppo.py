@@ -76,12 +76,12 @@ def _parse_value(text: str) -> Any:
     return tuple(value) if isinstance(value, list) else value
 
 
-def env_overrides(args: Args) -> dict[str, Any]:
+def env_overrides(args: Any) -> dict[str, Any]:
     """Env settings from ``--reward`` and ``--env-config KEY=VALUE``."""
     out: dict[str, Any] = {}
     if args.reward is not None:
         out["reward"] = args.reward
-    for item in args.env_config:
+    for item in args.env_config or ():
         if "=" not in item:
             raise ValueError(f"--env-config {item!r}: expected KEY=VALUE")
         k, v = item.split("=", 1)
@@ -140,6 +140,8 @@ def _preparse(argv: list[str]) -> argparse.Namespace:
     pre.add_argument("--env", default="arm7")
     pre.add_argument("--preset", default="auto")
     pre.add_argument("--resume", default=None)
+    pre.add_argument("--reward", default=None)
+    pre.add_argument("--env-config", dest="env_config", nargs="*", default=())
     known, _ = pre.parse_known_args(argv)
     return known
 
@@ -167,7 +169,7 @@ def parse(argv: list[str] | None = None) -> Args:
         default_cfg = PPOConfig()
     else:
         preset = resolve_preset(known.preset)
-        probe = make_env(known.env, ppo_env_overrides(preset, known.env))
+        probe = make_env(known.env, {**ppo_env_overrides(preset, known.env), **env_overrides(known)})
         default_cfg, _ = ppo_preset(preset, known.env, _episode_length(probe), int(probe.action_size))
     args = tyro.cli(Args, args=argv, default=Args(ppo=default_cfg, env=known.env, preset=preset))
     args = dataclasses.replace(args, preset=resolve_preset(args.preset))
