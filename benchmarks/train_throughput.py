@@ -38,8 +38,8 @@ RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 
 def device_label() -> str:
     d = jax.devices()[0]
-    kind = d.device_kind if d.platform != "cpu" else f"cpu-{os.cpu_count()}core"
-    return f"{d.platform}-{kind}".replace(" ", "_").lower()
+    label = f"cpu-{os.cpu_count()}core" if d.platform == "cpu" else f"{d.platform}-{d.device_kind}"
+    return label.replace(" ", "_").lower()
 
 
 def bench_ours(env: Any, lanes: int, unroll: int, chunk_iters: int, repeats: int, updates: int) -> dict[str, Any]:

@@ -228,7 +228,7 @@ class _Progress:
 
 def _progress_info(metrics: dict[str, float], sps: float) -> str:
     parts = [f"{sps:,.0f} steps/s"]
-    for key, label in (("episode_return", "return"), ("success", "success"), ("tracking_error", "error")):
+    for key, label in (("episode_return", "return"), ("success", "success"), ("pos_error", "tracking error")):
         v = metrics.get(key)
         if v is not None and math.isfinite(v):
             parts.append(f"{label} {v:.3g}")
