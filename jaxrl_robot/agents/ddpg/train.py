@@ -371,8 +371,8 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
         state, (sums, count, ep) = jax.lax.scan(lambda s, _: iteration(s), state, None, length=chunk)
         state = _like(state, start)
         n = jnp.sum(count)
-        out: dict[str, jax.Array] = {k: jnp.where(n > 0, jnp.sum(v) / jnp.maximum(n, 1.0), jnp.nan)
-                                     for k, v in sums.items()}
+        # means over the chunk's updates; 0 before learning starts (``updates`` says how many ran)
+        out: dict[str, jax.Array] = {k: jnp.sum(v) / jnp.maximum(n, 1.0) for k, v in sums.items()}
         ep = jax.tree.map(jnp.sum, ep)
         episodes = ep.pop("episodes")
         out["episodes"] = episodes
