@@ -121,6 +121,7 @@ def _preparse(argv: list[str]) -> argparse.Namespace:
     pre.add_argument("--env", default="arm7")
     pre.add_argument("--preset", default="auto")
     pre.add_argument("--reward", default=None)
+    pre.add_argument("--trajectory", default=None)
     pre.add_argument("--resume", default=None)
     known, _ = pre.parse_known_args(argv)
     return known
@@ -148,7 +149,8 @@ def parse(argv: list[str] | None = None) -> Args:
     else:
         preset = resolve_preset(known.preset)
         reward = known.reward
-        probe = make_env(known.env, {"reward": reward} if reward else {})
+        probe_overrides = {k: v for k, v in (("reward", reward), ("trajectory", known.trajectory)) if v}
+        probe = make_env(known.env, probe_overrides)  # sizes the preset's budget (episodes × length)
         reward = reward or getattr(getattr(probe, "config", None), "reward", None)
         default_cfg = ddpg_preset(preset, known.env, _episode_length(probe), reward)
     args = tyro.cli(Args, args=argv, default=Args(ddpg=default_cfg, env=known.env, preset=known.preset))
