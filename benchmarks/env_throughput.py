@@ -112,6 +112,11 @@ CASES: list[Case | RawMJX] = [
     Case("arm7 pd", "arm7", (("mode", "pd"),), raw="raw MJX arm7"),
     Case("arm7 kinematic", "arm7", (("mode", "kinematic"),), raw="raw MJX arm7"),
     RawMJX("raw MJX arm7", "arm7", (("mode", "pd"),)),
+    Case("scara", "scara", raw="raw MJX scara"),
+    RawMJX("raw MJX scara", "scara"),
+    Case("unicycle dynamic", "unicycle", (("mode", "dynamic"),), raw="raw MJX unicycle"),
+    Case("unicycle kinematic", "unicycle", (("mode", "kinematic"),), raw="raw MJX unicycle"),
+    RawMJX("raw MJX unicycle", "unicycle", (("mode", "dynamic"),)),
 ]
 
 XLA_SETTINGS = {"no-algsimp": {"xla_disable_hlo_passes": "algsimp"}, "xla-default": {}}
