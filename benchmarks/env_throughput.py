@@ -183,7 +183,13 @@ def markdown(meta: dict[str, Any], rows: list[dict[str, Any]], mlp: list[dict[st
         f"{meta['steps']} control steps per timed call, median of {meta['repeats']}; env cases run "
         "`wrap_for_training` (auto-reset) under random actions; raw MJX = `mjx.step` of the same model, "
         "same substeps. `no-algsimp`: XLA's `algsimp` pass disabled for the computation (what "
-        "`envs_mjx` uses on the CPU); `xla-default`: XLA's default pipeline.",
+        "`envs_mjx` uses on the CPU); `xla-default`: XLA's default pipeline."
+        + (
+            f" Load average {meta['loadavg_start']:.1f} at the start, {meta['loadavg_end']:.1f} at the end "
+            f"(the machine was shared; CPU figures are noisy)."
+            if meta.get("loadavg_start") is not None
+            else ""
+        ),
         "",
         "| case | XLA | lanes | control steps/s | physics steps/s | x raw MJX | compile s |",
         "|---|---|---:|---:|---:|---:|---:|",
@@ -219,7 +225,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--batches", type=int, nargs="+", default=[64, 256, 1024] if on_cpu else [1024, 8192, 65536])
     parser.add_argument("--cases", nargs="+", default=[c.label for c in CASES], help="labels from CASES")
     parser.add_argument("--steps", type=int, default=10 if on_cpu else 20, help="control steps per timed call")
-    parser.add_argument("--repeats", type=int, default=3 if on_cpu else 5)
+    parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument(
         "--default-xla-batches", type=int, nargs="*", default=[64] if on_cpu else [],
         help="batches also measured with XLA's default pipeline (CPU before/after)",
@@ -241,6 +247,7 @@ def main(argv: list[str] | None = None) -> None:
         "steps": args.steps,
         "repeats": args.repeats,
         "xla_flags": os.environ.get("XLA_FLAGS", ""),
+        "loadavg_start": os.getloadavg()[0] if on_cpu else None,
     }
     out = args.out or os.path.join(RESULTS, f"{meta['device_label']}-env_throughput.json")
     os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
@@ -248,6 +255,8 @@ def main(argv: list[str] | None = None) -> None:
     mlp: list[dict[str, Any]] = []
 
     def save() -> None:
+        if on_cpu:
+            meta["loadavg_end"] = os.getloadavg()[0]
         with open(out, "w") as f:
             json.dump({"meta": meta, "rows": rows, "mlp_side_cost": mlp}, f, indent=1)
         with open(os.path.splitext(out)[0] + ".md", "w") as f:

@@ -28,7 +28,9 @@ feasible region; the time limit ``max_steps`` is applied by the wrappers (trunca
 
 The feasible region is the ball of radius ``region_radius`` about the shoulder (joint 2) above
 the plane ``z = region_floor``: convex, so the straight path between two feasible points stays
-feasible.
+feasible.  Starts and goals come from joint configurations in the middle half of each joint's
+range (``sample_fraction``); with them a greedy controller that moves straight at the goal
+reaches it in every one of 2048 test episodes (``python -m envs_mjx.demo``).
 """
 
 from __future__ import annotations
@@ -50,7 +52,7 @@ from mujoco import mjx
 
 from envs_mjx import ik, xla
 from envs_mjx.base import RobotEnv, sanitize_action
-from envs_mjx.config import check_choice, check_range, check_vector
+from envs_mjx.config import ConfigError, check_choice, check_range, check_vector
 
 __all__ = ["ASSET", "Arm7", "Arm7Config", "KinematicState"]
 
@@ -144,8 +146,6 @@ class Arm7Config:
 
 
 def _check_int(field: str, value: Any, lo: int) -> None:
-    from envs_mjx.config import ConfigError
-
     if isinstance(value, bool) or not isinstance(value, int | np.integer):
         raise ConfigError(f"{field}={value!r} must be an integer >= {lo}")
     check_range(field, value, lo)
