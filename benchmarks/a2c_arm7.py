@@ -8,7 +8,7 @@ Each row is one ``python -m train.<algo> --env arm7 --reward <reward> --preset <
 evaluation: success over 100 test episodes from fresh random starts and goals, and the mean extra
 distance (path length minus straight-line distance, over the successful episodes). Recorded per
 row: those two, wall time (compile, training, evaluation), env steps actually taken (lanes idle
-after an early episode end within a round) and their rate over the training time, the mean
+after an early episode end within a round) and their rate after the first (compiling) chunk, the mean
 gradient staleness, and the preset's hyper-parameters.
 
 Results: ``benchmarks/results/<device>-a2c_arm7.json`` and ``.md``; rows are merged by
@@ -22,7 +22,6 @@ import json
 import math
 import os
 import platform
-import time
 from typing import Any
 
 import jax
@@ -40,23 +39,18 @@ def device_label() -> str:
     return f"{d.platform}-{kind}".replace(" ", "_").lower()
 
 
-def run_row(algo: str, reward: str, preset: str, seed: int, runs: str, extra: list[str]) -> dict[str, Any]:
-    """Train and evaluate one row through the CLI; return its record."""
-    before = set(os.listdir(runs)) if os.path.isdir(runs) else set()
-    argv = ["--env", "arm7", "--reward", reward, "--preset", preset, "--seed", str(seed), "--out", runs, *extra]
-    t0 = time.perf_counter()
-    code = a2c_cli.main(argv, algo=algo)
-    wall = time.perf_counter() - t0
-    (run_dir,) = [os.path.join(runs, d) for d in set(os.listdir(runs)) - before]
-    if code != 0:
-        return {"algo": algo, "reward": reward, "preset": preset, "seed": seed, "extra": extra, "error": code,
-                "run_dir": run_dir}  # fmt: skip
+def record(run_dir: str, algo: str, reward: str, preset: str, seed: int, extra: list[str]) -> dict[str, Any]:
+    """The row's record from its run directory (``eval.json``, ``config.json``, ``metrics.csv``).
+
+    ``env_steps_per_s`` leaves out the first chunk, whose time includes compilation.
+    """
     ev = json.load(open(os.path.join(run_dir, "eval.json")))
     cfg = json.load(open(os.path.join(run_dir, "config.json")))
     rows = read_csv(os.path.join(run_dir, "metrics.csv"))
-    taken = sum(float(r["steps_taken"]) for r in rows)
+    taken = [float(r["steps_taken"]) for r in rows]
     pushes = [(float(r["applied_gradients"]), float(r["staleness_mean"])) for r in rows]
     n_push = sum(n for n, _ in pushes)
+    steady_s = ev["train_s"] - ev["compile_s"]
     return {
         "algo": algo,
         "reward": reward,
@@ -68,12 +62,12 @@ def run_row(algo: str, reward: str, preset: str, seed: int, runs: str, extra: li
         "mean_extra_distance": ev["mean_extra_distance"],
         "mean_length": ev["mean_length"],
         "env_step_slots": ev["env_steps"],
-        "env_steps_taken": taken,
+        "env_steps_taken": sum(taken),
         "train_s": ev["train_s"],
         "compile_s": ev["compile_s"],
         "eval_s": ev["eval_s"],
-        "wall_s": wall,
-        "env_steps_per_s": taken / ev["train_s"],
+        "wall_s": ev["wall_s"],
+        "env_steps_per_s": (sum(taken) - taken[0]) / steady_s if len(rows) > 1 and steady_s > 0 else float("nan"),
         "staleness_mean": sum(n * s for n, s in pushes) / max(n_push, 1.0),
         "episodes": sum(float(r["episodes"]) for r in rows),
         "config": cfg[algo],
@@ -81,6 +75,18 @@ def run_row(algo: str, reward: str, preset: str, seed: int, runs: str, extra: li
         "run_dir": run_dir,
         "thesis_success": THESIS[(algo, reward)],
     }
+
+
+def run_row(algo: str, reward: str, preset: str, seed: int, runs: str, extra: list[str]) -> dict[str, Any]:
+    """Train and evaluate one row through the CLI; return its record."""
+    before = set(os.listdir(runs)) if os.path.isdir(runs) else set()
+    argv = ["--env", "arm7", "--reward", reward, "--preset", preset, "--seed", str(seed), "--out", runs, *extra]
+    code = a2c_cli.main(argv, algo=algo)
+    (run_dir,) = [os.path.join(runs, d) for d in set(os.listdir(runs)) - before]
+    if code != 0:
+        return {"algo": algo, "reward": reward, "preset": preset, "seed": seed, "extra": extra, "error": code,
+                "run_dir": run_dir}  # fmt: skip
+    return record(run_dir, algo, reward, preset, seed, extra)
 
 
 def _key(r: dict[str, Any]) -> tuple:
@@ -112,6 +118,13 @@ def to_markdown(result: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _write(stem: str, result: dict[str, Any]) -> None:
+    with open(stem + ".json", "w") as f:
+        json.dump(result, f, indent=2, default=float)
+    with open(stem + ".md", "w") as f:
+        f.write(to_markdown(result))
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--preset", default="cpu", help="thesis, cpu or fast")
@@ -121,6 +134,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--out", default=RESULTS)
     p.add_argument("--note", default="", help="free text recorded with the results (e.g. machine load)")
     p.add_argument("--extra", nargs=argparse.REMAINDER, default=[], help="further train.a2c flags for every row")
+    p.add_argument("--rebuild", action="store_true", help="only re-derive the saved rows from their run directories")
     args = p.parse_args(argv)
     os.makedirs(args.runs, exist_ok=True)
     os.makedirs(args.out, exist_ok=True)
@@ -129,6 +143,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
               "note": "Each row: one CLI run; success over 100 test episodes of the final policy."}  # fmt: skip
     if os.path.exists(stem + ".json"):
         result = json.load(open(stem + ".json"))
+    if args.rebuild:
+        keep = ("algo", "reward", "preset", "seed", "extra")
+        result["rows"] = [
+            {**r, **record(r["run_dir"], *(r[k] for k in keep))} if "error" not in r else r for r in result["rows"]
+        ]
+        _write(stem, result)
+        return result
     for seed in args.seeds:
         for row in args.rows:
             algo, reward = row.split(":")
@@ -136,10 +157,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             if args.note:
                 rec["note"] = args.note
             result["rows"] = [r for r in result["rows"] if _key(r) != _key(rec)] + [rec]
-            with open(stem + ".json", "w") as f:
-                json.dump(result, f, indent=2, default=float)
-            with open(stem + ".md", "w") as f:
-                f.write(to_markdown(result))
+            _write(stem, result)
             print(to_markdown({**result, "rows": [rec]}), flush=True)
     return result
 

@@ -17,7 +17,8 @@ TINY = ["--num-envs", "4", "--unroll-length", "8", "--actor-hidden", "16", "--cr
 
 def test_a3c_cli_tiny_run_writes_the_run_directory(tmp_path):
     cmd = [sys.executable, "-m", "train.a3c", "--env", "arm7", "--reward", "path", "--total-steps", "256",
-           "--chunks", "2", "--eval-episodes", "5", "--push-order", "fixed", "--out", str(tmp_path), *TINY]  # fmt: skip
+           "--chunks", "2", "--eval-episodes", "5", "--push-order", "fixed", "--lanes-per-worker", "1", "--out",
+           str(tmp_path), *TINY]  # fmt: skip
     env = {**os.environ, "PYTHONPATH": ROOT + os.pathsep + os.environ.get("PYTHONPATH", "")}
     proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]

@@ -283,6 +283,13 @@ def make_trainer(
       env: an *unbatched* ``brax.envs.base.Env``; wrapped with ``envs_mjx.wrap_for_training``.
       mesh: device mesh from ``parallel.lane_mesh`` (default: all devices).
       iterations_per_update: rounds per ``update`` call (one chunk).
+
+    Metrics of a chunk (scalars): ``actor_loss``, ``critic_loss``, ``entropy``, ``value``,
+    ``advantage`` (means over rounds), ``reward`` (per step taken), ``steps_taken`` (env steps
+    taken; ``env_steps_per_update`` counts slots, idle ones included), ``episodes`` and every env
+    episode metric (means over finished episodes, NaN if none), ``worker_return_<w>`` (mean
+    episode return of worker ``w``, first 8 workers), ``applied_gradients``, ``staleness_mean``,
+    ``staleness_max`` and for A3C ``staleness_hist_<lower edge>`` (share of the chunk's pushes).
     """
     config.validate()
     if iterations_per_update < 1:
