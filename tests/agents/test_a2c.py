@@ -25,6 +25,7 @@ from jaxrl_robot.agents.a2c import (
     critic_loss,
     init_push_state,
     make_networks,
+    make_train,
     make_trainer,
     make_worker_loss,
     push_in_order,
@@ -384,13 +385,15 @@ def test_a2c_learns_to_reach():
     )
     env = Reach()
     trainer = make_trainer(cfg, env, iterations_per_update=10)
+    train = make_train(cfg, env, iterations_per_update=10)
 
     @jax.jit
     def train_and_test(key):
-        state = trainer.init(key)
-        state, _ = jax.lax.scan(lambda s, _: trainer.update(s), state, None, length=trainer.num_updates)
-        return run_test_episodes(jax.random.PRNGKey(99), env, trainer.policy(state), 100)
+        state, metrics = train(key)
+        return run_test_episodes(jax.random.PRNGKey(99), env, trainer.policy(state), 100), metrics
 
     untrained = jax.jit(lambda k: run_test_episodes(jax.random.PRNGKey(99), env, trainer.policy(trainer.init(k)), 100))
     assert float(untrained(jax.random.PRNGKey(0))["success"].mean()) < 0.2
-    assert float(train_and_test(jax.random.PRNGKey(0))["success"].mean()) >= 0.9
+    test, metrics = train_and_test(jax.random.PRNGKey(0))
+    assert metrics["success"].shape == (trainer.num_updates,)
+    assert float(test["success"].mean()) >= 0.9

@@ -51,7 +51,7 @@ class A2CConfig:
     critic_hidden: tuple[int, ...] = (200, 200)
     """Hidden layer widths of the critic."""
     batch_norm: bool = True
-    """Batch-normalise the actor (each lane's buffer in training, moving averages when acting)."""
+    """Batch-normalise the actor (batch statistics in training, see bn_batch; moving averages when acting)."""
     bn_momentum: float = 0.99
     """Decay of the batch-norm moving averages."""
     bn_batch: str = "update"
