@@ -99,15 +99,24 @@ def num_copies(strategy: str, k: int) -> int:
     return {"none": 1, "final": 2, "future": 1 + int(k), "random": 1 + int(k)}[strategy]
 
 
-def make_her(env: GoalEnv, strategy: str, k: int = 2) -> Her:
+def make_her(
+    env: GoalEnv,
+    strategy: str,
+    k: int = 2,
+    goal_reached: Callable[[jax.Array, jax.Array], jax.Array] | None = None,
+) -> Her:
     """Hindsight relabelling for ``env`` with ``strategy`` (see module doc) and ``k`` goals.
+
+    ``goal_reached(achieved, goal) -> bool`` marks relabelled transitions that reach their new
+    goal as terminal; default: ``env.goal_reached`` if the env has one, else only failures are
+    terminal.
 
     Raises:
       ValueError: an unknown strategy (the message lists the valid ones) or ``k < 1``.
     """
     copies = num_copies(strategy, k)
     extra = copies - 1
-    goal_reached = getattr(env, "goal_reached", None)
+    goal_reached = goal_reached if goal_reached is not None else getattr(env, "goal_reached", None)
 
     def extra_goals(key: jax.Array, ep: GoalEpisode, length: jax.Array) -> tuple[jax.Array, jax.Array]:
         """Additional goals ``[T, extra, G]`` and their validity ``[T, extra]``."""

@@ -67,6 +67,11 @@ def test_final_goal_is_last_achieved_and_reached_at_the_end(episode):
     # the last real step reaches the relabelled goal: sparse reward 0 and terminal
     assert float(tr.reward[4, 1]) == 0.0 and float(tr.terminated[4, 1]) == 1.0
     assert bool((tr.reward[:4, 1] == -1.0).all())
+    # a caller's goal test replaces the env's: never reached -> only failures are terminal
+    tr, _, _ = make_her(env, "final", goal_reached=lambda a, g: jnp.zeros(a.shape[:-1], bool)).relabel(
+        jax.random.PRNGKey(0), ep
+    )
+    assert float(tr.terminated[4, 1]) == 0.0 and float(tr.reward[4, 1]) == 0.0
 
 
 def test_final_is_skipped_when_the_final_state_left_the_feasible_region():
