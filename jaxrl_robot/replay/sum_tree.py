@@ -20,7 +20,8 @@ Numerical robustness (float32):
   no longer equals the sum of the leaves and may even go negative).  Instead every ancestor
   of a changed leaf is *recomputed* from its children, level by level.  Each internal node
   is therefore always the float sum of its current children, whatever the history, and the
-  root differs from the exact sum of the leaves by at most one rounding per level.
+  root differs from the exact sum of the leaves only by the rounding of one summation per
+  level — an error that does not grow with the number of updates.
   :func:`rebuild` recomputes the whole tree from its leaves in O(N) (used after loading).
 * **Zero-priority and unwritten slots are never sampled.**  Rounding can push a query to or
   past the running sum of a node's children (e.g. ``u · total`` rounding up to ``total``).
