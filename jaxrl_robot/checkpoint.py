@@ -61,10 +61,15 @@ class Checkpointer:
         out = self._manager.restore(int(step), args=args)
         state = out["state"]
         if target is not None:
-            leaves, treedef = jax.tree.flatten(target)
-            restored = jax.tree.leaves(state, is_leaf=lambda x: x is None)
-            state = jax.tree.unflatten(treedef, [t if r is None else r for t, r in zip(leaves, restored, strict=True)])
+            saved = {_names(p): v for p, v in jax.tree_util.tree_flatten_with_path(state)[0]}
+            paths, treedef = jax.tree_util.tree_flatten_with_path(target)
+            state = jax.tree.unflatten(treedef, [saved[_names(p)] if np.size(t) else t for p, t in paths])
         return state, dict(out["record"])
 
     def close(self) -> None:
         self._manager.close()
+
+
+def _names(path: tuple) -> tuple:
+    """A key path as plain names, so a dataclass field and the dict key it was saved under match."""
+    return tuple(str(getattr(k, "name", getattr(k, "key", getattr(k, "idx", k)))) for k in path)

@@ -138,3 +138,25 @@ def test_nan_guard_stops_naming_the_step_and_keeps_the_last_good_checkpoint(tmp_
     state, record = ckpt.restore(3, {"count": jnp.zeros((), jnp.int32), "w": jnp.zeros(3)})
     assert int(state["count"]) == 3 and record["env_steps"] == 300
     np.testing.assert_array_equal(state["w"], 3.0)
+
+
+def test_checkpoint_round_trip_keeps_structure_with_empty_arrays(tmp_path):
+    """MJX's Data holds zero-size arrays and a no-BN actor an empty dict; both survive save/restore."""
+    from jaxrl_robot.types import RunningStats
+
+    state = {
+        "params": {"w": jnp.arange(4.0).reshape(2, 2)},
+        "stats": {},
+        "empty": jnp.zeros((3, 0)),
+        "rs": RunningStats(count=jnp.asarray(2.0), mean=jnp.ones(2), var=jnp.full(2, 3.0)),
+        "key": jax.random.PRNGKey(5),
+    }
+    ckpt = Checkpointer(str(tmp_path / "ck"))
+    ckpt.save(7, state, {"chunk": 7})
+    template = jax.tree.map(jnp.zeros_like, state)
+    restored, record = ckpt.restore(7, template)
+    assert record == {"chunk": 7} and ckpt.latest_step() == 7
+    assert jax.tree.structure(restored) == jax.tree.structure(state)
+    for a, b in zip(jax.tree.leaves(restored), jax.tree.leaves(state), strict=True):
+        assert a.shape == b.shape and a.dtype == b.dtype
+        np.testing.assert_array_equal(a, b)
