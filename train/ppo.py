@@ -108,6 +108,7 @@ def make_env(name: str, overrides: dict[str, Any]):
 
 
 def _episode_length(env, cfg_len: int = 0) -> int:
+    """The configured time limit, else the env's ``episode_length``, else 1000 (brax's default)."""
     return int(cfg_len or getattr(env, "episode_length", 0) or 1000)
 
 
