@@ -231,6 +231,11 @@ class Arm7(RobotEnv):
         parts = [ee_pos, goal - ee_pos] + ([goal] if self.config.obs == "goal" else [])
         return jnp.concatenate(parts, axis=-1)
 
+    def goal_reached(self, achieved: jax.Array, goal: jax.Array) -> jax.Array:
+        """Success test, bool ``[...]``: closer than ``goal_threshold`` to the goal and inside the region."""
+        dist = jnp.linalg.norm(goal - achieved, axis=-1)
+        return (dist < self.config.goal_threshold) & self.in_feasible_region(achieved)
+
     def achieved_goal(self, state: State) -> jax.Array:
         """End-effector position ``[..., 3]`` of a state."""
         return state.info["ee_pos"]
@@ -255,7 +260,7 @@ class Arm7(RobotEnv):
         d_prev = jnp.linalg.norm(desired - achieved_prev, axis=-1)
         d_next = jnp.linalg.norm(desired - achieved_next, axis=-1)
         inside = self.in_feasible_region(achieved_next)
-        success = (d_next < cfg.goal_threshold) & inside
+        success = self.goal_reached(achieved_next, desired)
         if cfg.reward == "sparse":  # Eq. 3.11
             task = jnp.where(success, 0.0, -1.0).astype(d_next.dtype)
         elif cfg.reward == "shaped":  # Eq. 3.13 (Eq. 3.14 for lambda=0, k=1)
@@ -365,9 +370,8 @@ class Arm7(RobotEnv):
         terms = self.reward_terms(p_next, goal, p)
         reward = terms["task"] + terms["region"] + terms["goal"]
         dist = jnp.linalg.norm(goal - p_next)
-        inside = self.in_feasible_region(p_next)
-        success = ((dist < self.config.goal_threshold) & inside).astype(jnp.float32)
-        out = (~inside).astype(jnp.float32)
+        success = self.goal_reached(p_next, goal).astype(jnp.float32)
+        out = (~self.in_feasible_region(p_next)).astype(jnp.float32)
         path_length = info["path_length"] + jnp.linalg.norm(p_next - p)
         extra = path_length - jnp.linalg.norm(goal - info["start_pos"])
         info.update(ee_pos=p_next, path_length=path_length)

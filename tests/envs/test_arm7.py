@@ -169,6 +169,9 @@ def test_leaving_the_region_is_penalised_and_not_a_success():
     far = np.array([0.0, 0.0, 0.36 + 0.95])  # beyond the 0.9 m ball about the shoulder
     env = make()
     np.testing.assert_array_equal(env.in_feasible_region(jnp.asarray(np.stack([P0, below, far]))), [True, False, False])
+    reached = env.goal_reached(jnp.asarray(np.stack([below, G - [0, 0.03, 0], G - [0, 0.06, 0]])), jnp.asarray(G))
+    np.testing.assert_array_equal(reached, [False, True, False])
+    assert not bool(env.goal_reached(jnp.asarray(below), jnp.asarray(goal_below)))  # within 0.05 m but outside
 
 
 def test_compute_reward_broadcasts_over_batches():
