@@ -103,6 +103,28 @@ def to_markdown(result: dict[str, Any]) -> str:
         "| env-steps/s | train s | compile s | mean staleness |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
+    rows = [r for r in result["rows"] if "error" not in r]
+    groups: dict[tuple, list[dict[str, Any]]] = {}
+    for r in rows:
+        groups.setdefault((r["algo"], r["reward"], r["preset"], " ".join(r["extra"])), []).append(r)
+    summary = [
+        "",
+        "Per setting, over seeds: success (mean, min–max of the seeds), mean extra distance of the seeds' means.",
+        "",
+        "| algo | reward | preset | flags | seeds | success % (thesis) | extra distance (m) |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for (algo, reward, preset, flags), rs in sorted(groups.items()):
+        succ = [100 * r["success_rate"] for r in rs]
+        extra = [r["mean_extra_distance"] for r in rs if r["mean_extra_distance"] is not None]
+        extra = [x for x in extra if not math.isnan(x)]
+        extra_s = f"{sum(extra) / len(extra):.3f}" if extra else "n/a"
+        summary.append(
+            f"| {algo} | {reward} | {preset} | {flags} | {len(rs)} | {sum(succ) / len(succ):.1f} "
+            f"({min(succ):.0f}–{max(succ):.0f}) ({THESIS[(algo, reward)]}) | {extra_s} |"
+        )
+    lines += summary + ["", "All runs:", ""] + lines[4:6]
+    del lines[4:6]
     for r in sorted(result["rows"], key=_key):
         if "error" in r:
             lines.append(f"| {r['algo']} | {r['reward']} | {r['preset']} | {r['seed']} | {' '.join(r['extra'])} "
@@ -115,6 +137,9 @@ def to_markdown(result: dict[str, Any]) -> str:
             f"| {round(100 * r['success_rate'])} ({r['thesis_success']}) | {extra_s} | {r['env_steps_taken']:,.0f} "
             f"| {r['env_steps_per_s']:,.0f} | {r['train_s']:.0f} | {r['compile_s']:.0f} | {r['staleness_mean']:.2f} |"
         )
+    findings = result.get("findings", [])
+    if findings:
+        lines += ["", "## Findings", ""] + [f"- {f}" for f in findings]
     return "\n".join(lines) + "\n"
 
 
