@@ -86,6 +86,8 @@ class GaussianActor(nn.Module):
       batch_norm: normalise the input and every hidden pre-activation (bias-free linear
         layers, as the BN shift replaces the bias).
       bn_momentum: moving-average decay of the batch-norm statistics.
+      bn_epsilon: added to the variance; 1e-3 (not 1e-5) so that a feature nearly constant
+        within a small mini-batch is not blown up into huge activations.
       bn_axis_name: mapped axis name over which batch statistics are averaged (set it when
         the actor runs inside ``shard_map``/``vmap`` with a named axis so that every device
         normalises with the global mini-batch statistics).
@@ -97,6 +99,7 @@ class GaussianActor(nn.Module):
     learn_std: bool = False
     batch_norm: bool = False
     bn_momentum: float = 0.99
+    bn_epsilon: float = 1e-3
     bn_axis_name: str | None = None
 
     @nn.compact
@@ -125,7 +128,7 @@ class GaussianActor(nn.Module):
         return nn.BatchNorm(
             use_running_average=not train,
             momentum=self.bn_momentum,
-            epsilon=1e-5,
+            epsilon=self.bn_epsilon,
             axis_name=self.bn_axis_name if train else None,
         )(x, mask=row_mask)
 

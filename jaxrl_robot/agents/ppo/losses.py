@@ -6,7 +6,17 @@ import chex
 import jax
 import jax.numpy as jnp
 
-__all__ = ["adapt_kl_beta", "clipped_surrogate_loss", "kl_penalty_loss", "value_loss"]
+__all__ = ["LOG_RATIO_LIMIT", "adapt_kl_beta", "clipped_surrogate_loss", "kl_penalty_loss", "value_loss"]
+
+LOG_RATIO_LIMIT = 20.0
+"""|log r| is clipped here before ``exp``: beyond it r overflows float32 (e^88) with a narrow σ
+(0.1 on an action in [-1, 1] allows |log r| up to ~200), and one inf ratio with a negative
+advantage would turn the gradient into NaN. Such samples then carry no gradient."""
+
+
+def _ratio(log_prob: jax.Array, old_log_prob: jax.Array) -> jax.Array:
+    log_ratio = log_prob - jax.lax.stop_gradient(old_log_prob)
+    return jnp.exp(jnp.clip(log_ratio, -LOG_RATIO_LIMIT, LOG_RATIO_LIMIT))
 
 
 def clipped_surrogate_loss(
@@ -19,12 +29,13 @@ def clipped_surrogate_loss(
       old_log_prob: ``[B]`` ``log π_θold(a|s)`` (treated as a constant).
       advantages: ``[B]`` ``A_t`` (constant).
       clip_eps: ε.
+    The log-ratio is clipped to ±:data:`LOG_RATIO_LIMIT` before ``exp`` (overflow guard).
     Returns:
       ``(loss [], clip_fraction [])``: the loss to minimise and the share of clipped ratios.
     """
     chex.assert_rank((log_prob, old_log_prob, advantages), 1)
     chex.assert_equal_shape((log_prob, old_log_prob, advantages))
-    ratio = jnp.exp(log_prob - jax.lax.stop_gradient(old_log_prob))
+    ratio = _ratio(log_prob, old_log_prob)
     advantages = jax.lax.stop_gradient(advantages)
     clipped = jnp.clip(ratio, 1.0 - clip_eps, 1.0 + clip_eps)
     objective = jnp.minimum(ratio * advantages, clipped * advantages)
@@ -46,7 +57,7 @@ def kl_penalty_loss(
     """
     chex.assert_rank((log_prob, old_log_prob, advantages, kl), 1)
     chex.assert_equal_shape((log_prob, old_log_prob, advantages, kl))
-    ratio = jnp.exp(log_prob - jax.lax.stop_gradient(old_log_prob))
+    ratio = _ratio(log_prob, old_log_prob)
     objective = ratio * jax.lax.stop_gradient(advantages) - jax.lax.stop_gradient(beta) * kl
     return -jnp.mean(objective)
 

@@ -34,7 +34,13 @@ from envs_mjx.config import ConfigError
 from jaxrl_robot import parallel
 from jaxrl_robot.acting import rollout
 from jaxrl_robot.agents.ppo.config import PPOConfig
-from jaxrl_robot.agents.ppo.losses import adapt_kl_beta, clipped_surrogate_loss, kl_penalty_loss, value_loss
+from jaxrl_robot.agents.ppo.losses import (
+    LOG_RATIO_LIMIT,
+    adapt_kl_beta,
+    clipped_surrogate_loss,
+    kl_penalty_loss,
+    value_loss,
+)
 from jaxrl_robot.networks import (
     Critic,
     GaussianActor,
@@ -247,7 +253,8 @@ def make_trainer(
             loss, clip_frac = clipped_surrogate_loss(log_prob, old_log_prob, adv, config.clip_eps)
         else:
             loss = kl_penalty_loss(log_prob, old_log_prob, adv, kl, beta)
-            clip_frac = jnp.mean((jnp.abs(jnp.exp(log_prob - old_log_prob) - 1.0) > config.clip_eps) * 1.0)
+            log_ratio = jnp.clip(log_prob - old_log_prob, -LOG_RATIO_LIMIT, LOG_RATIO_LIMIT)
+            clip_frac = jnp.mean((jnp.abs(jnp.exp(log_ratio) - 1.0) > config.clip_eps) * 1.0)
         loss = loss - config.entropy_coef * entropy
         return loss, (new_stats, clip_frac, entropy, jnp.mean(kl))
 
