@@ -5,6 +5,8 @@ PPO presets:
 * ``thesis`` — the thesis's setting: K = 4 workers; arm: N = 8, 5 actor and 5 critic updates on
   32 transitions, 2000 episodes' worth of steps (Table 5.2, §5.4); mobile robot: N = 16, 8 updates
   on 32 of 64, 3000 episodes, piecewise RSI + shrinking early-termination limit (Table 5.3, §5.5).
+  The arm's batch-norm actor is kept although it learns poorly here (10 % test success on arm7,
+  95 % with ``--no-batch-norm``; ``benchmarks/results/*ppo_arm7*``).
 * ``cpu`` — a few dozen lanes, sized for a 2-core CPU (the default without an accelerator);
   larger learning rates and no batch-norm (more stable here than the thesis's BN actor).
 * ``fast`` — thousands of lanes for one GPU (the default with an accelerator).
