@@ -381,6 +381,8 @@ def test_a2c_learns_to_reach():
         sigma=(0.3,),
         actor_hidden=(64, 64),
         critic_hidden=(64, 64),
+        batch_norm=False,  # as the cpu/fast presets: the batch-norm actor is tested apart
+        normalize_advantages=True,
         total_steps=200_000,
     )
     env = Reach()
