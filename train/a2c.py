@@ -183,36 +183,12 @@ def draw_figures(run_dir: str) -> list[str]:
 
 def main(argv: list[str] | None = None, algo: str = "a2c") -> int:
     """Entry point; returns the process exit code."""
-    from envs_mjx.config import ConfigError
-
-    try:
-        args = parse(argv, algo)
-        env, trainer, config = build(args, algo)
-    except (ConfigError, ValueError, FileNotFoundError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    spec = common.RunSpec(
-        algo=algo,
-        env_name=args.env,
-        env=env,
-        trainer=trainer,
-        config=config,
-        seed=args.seed,
-        out=args.out,
-        run_dir=args.resume,
-        checkpoint_every=args.checkpoint_every,
-        eval_episodes=args.eval_episodes,
-        episode_length=int(config[algo]["episode_length"]),
-        stop_after_steps=args.stop_after_steps,
-        progress=args.progress,
+    return common.cli_main(
+        algo,
+        lambda: parse(argv, algo),
+        lambda args: build(args, algo),
+        after=lambda result: draw_figures(result["run_dir"]),
     )
-    try:
-        result = common.run(spec)
-    except common.NonFiniteLossError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 1
-    draw_figures(result["run_dir"])
-    return 0 if result.get("finished") or args.stop_after_steps else 1
 
 
 if __name__ == "__main__":

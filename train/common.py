@@ -333,3 +333,55 @@ def run(spec: RunSpec) -> dict[str, Any]:
     _print_table(title, {**summary, "env_steps": result["env_steps"], "wall_s": round(result["wall_s"], 1)})
     ckpt.close()
     return result
+
+
+def cli_main(
+    algo: str,
+    parse: Callable[[], Any],
+    build: Callable[[Any], tuple[Env, Trainer, dict[str, Any]]],
+    after: Callable[[dict[str, Any]], Any] | None = None,
+) -> int:
+    """The body of every ``python -m train.<algo>``: parse, build, :func:`run`; the exit code.
+
+    Args:
+      algo: the algorithm's name (run-directory prefix and the config section holding
+        ``episode_length``).
+      parse: returns the parsed arguments (fields ``env``, ``seed``, ``out``, ``resume``,
+        ``checkpoint_every``, ``eval_episodes``, ``stop_after_steps``, ``progress``).
+      build: ``args -> (env, trainer, config)``.
+      after: optional hook called with :func:`run`'s result (e.g. extra figures).
+    Returns:
+      0 on a finished run (or one stopped on purpose), 1 after a non-finite loss or an
+      unfinished run, 2 on bad input (the message names the field and the valid values).
+    """
+    from envs_mjx.config import ConfigError
+
+    try:
+        args = parse()
+        env, trainer, config = build(args)
+    except (ConfigError, ValueError, FileNotFoundError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    spec = RunSpec(
+        algo=algo,
+        env_name=args.env,
+        env=env,
+        trainer=trainer,
+        config=config,
+        seed=args.seed,
+        out=args.out,
+        run_dir=args.resume,
+        checkpoint_every=args.checkpoint_every,
+        eval_episodes=args.eval_episodes,
+        episode_length=int(config[algo]["episode_length"]),
+        stop_after_steps=args.stop_after_steps,
+        progress=args.progress,
+    )
+    try:
+        result = run(spec)
+    except NonFiniteLossError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1
+    if after is not None:
+        after(result)
+    return 0 if result.get("finished") or args.stop_after_steps else 1

@@ -181,35 +181,7 @@ def parse(argv: list[str] | None = None) -> Args:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the process exit code."""
-    from envs_mjx.config import ConfigError
-
-    try:
-        args = parse(argv)
-        env, trainer, config = build(args)
-    except (ConfigError, ValueError, FileNotFoundError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    spec = common.RunSpec(
-        algo="ppo",
-        env_name=args.env,
-        env=env,
-        trainer=trainer,
-        config=config,
-        seed=args.seed,
-        out=args.out,
-        run_dir=args.resume,
-        checkpoint_every=args.checkpoint_every,
-        eval_episodes=args.eval_episodes,
-        episode_length=int(config["ppo"]["episode_length"]),
-        stop_after_steps=args.stop_after_steps,
-        progress=args.progress,
-    )
-    try:
-        result = common.run(spec)
-    except common.NonFiniteLossError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 1
-    return 0 if result.get("finished") or args.stop_after_steps else 1
+    return common.cli_main("ppo", lambda: parse(argv), lambda args: build(args))
 
 
 if __name__ == "__main__":
