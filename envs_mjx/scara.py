@@ -43,7 +43,7 @@ import mujoco
 from mujoco import mjx
 
 from envs_mjx import tracking
-from envs_mjx.base import RobotEnv, State, sanitize_action
+from envs_mjx.base import State, sanitize_action
 from envs_mjx.config import ConfigError, check_range, check_vector
 from envs_mjx.trajectories import JointReference, joint_sinusoids
 
@@ -192,7 +192,7 @@ def scara_reward(err: jax.Array, coef: float = 2.0) -> jax.Array:
     return jnp.exp(-coef * jnp.sum(err**2, axis=-1))
 
 
-class Scara(RobotEnv):
+class Scara(tracking.TrackingEnv):
     """SCARA trajectory tracking; see the module docstring for model, action, observation, reward."""
 
     name = "scara"
@@ -222,23 +222,6 @@ class Scara(RobotEnv):
     @property
     def action_size(self) -> int:
         return 3
-
-    @property
-    def action_scale(self) -> jax.Array:
-        return self._scale
-
-    @property
-    def max_steps(self) -> int:
-        """Control steps of the reference (``config.max_steps``)."""
-        return int(self.config.max_steps)
-
-    @property
-    def dt(self) -> float:
-        return float(self.config.dt)
-
-    def default_params(self) -> dict[str, jax.Array]:
-        cfg = self.config
-        return tracking.make_params({"start_lo": cfg.rsi[0], "start_hi": cfg.rsi[1], "et_limit": cfg.et_limit})
 
     # ------------------------------------------------------------- reference
     def joint_reference(self, k: jax.Array) -> JointReference:

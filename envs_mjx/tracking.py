@@ -32,9 +32,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from envs_mjx.base import RobotEnv
 from envs_mjx.config import ConfigError
 
 __all__ = [
+    "TrackingEnv",
     "PARAM_KEYS",
     "axis_errors",
     "early_termination",
@@ -49,6 +51,32 @@ __all__ = [
 ]
 
 PARAM_KEYS = ("start_lo", "start_hi", "et_limit")
+
+
+class TrackingEnv(RobotEnv):
+    """Shared part of the trajectory-tracking environments (``scara``, ``unicycle``).
+
+    Subclasses set ``self._scale`` (the scale vector C) in ``__init__``; their config has
+    ``dt``, ``max_steps``, ``rsi`` (default RSI window) and ``et_limit``.
+    """
+
+    @property
+    def action_scale(self) -> jax.Array:
+        return self._scale
+
+    @property
+    def max_steps(self) -> int:
+        """Control steps of the reference (``config.max_steps``)."""
+        return int(self.config.max_steps)
+
+    @property
+    def dt(self) -> float:
+        return float(self.config.dt)
+
+    def default_params(self) -> dict[str, jax.Array]:
+        """RSI window and early-termination limit from the config (schedulable per episode)."""
+        cfg = self.config
+        return make_params({"start_lo": cfg.rsi[0], "start_hi": cfg.rsi[1], "et_limit": cfg.et_limit})
 
 
 def make_params(

@@ -57,7 +57,7 @@ import numpy as np
 from mujoco import mjx
 
 from envs_mjx import tracking
-from envs_mjx.base import RobotEnv, State, sanitize_action
+from envs_mjx.base import State, sanitize_action
 from envs_mjx.config import ConfigError, check_choice, check_range, check_vector
 from envs_mjx.trajectories import PLANAR_TRAJECTORIES, PlanarReference, default_duration, planar_reference
 
@@ -220,7 +220,7 @@ def _body_speed(qpos: jax.Array, qvel: jax.Array) -> tuple[jax.Array, jax.Array,
     return qvel[0] * c + qvel[1] * s, qvel[2], -qvel[0] * s + qvel[1] * c
 
 
-class Unicycle(RobotEnv):
+class Unicycle(tracking.TrackingEnv):
     """Mobile robot trajectory tracking; see the module docstring for modes, observation, reward."""
 
     name = "unicycle"
@@ -251,23 +251,6 @@ class Unicycle(RobotEnv):
     @property
     def action_size(self) -> int:
         return 2
-
-    @property
-    def action_scale(self) -> jax.Array:
-        return self._scale
-
-    @property
-    def max_steps(self) -> int:
-        """Control steps of the reference (``config.max_steps``)."""
-        return int(self.config.max_steps)
-
-    @property
-    def dt(self) -> float:
-        return float(self.config.dt)
-
-    def default_params(self) -> dict[str, jax.Array]:
-        cfg = self.config
-        return tracking.make_params({"start_lo": cfg.rsi[0], "start_hi": cfg.rsi[1], "et_limit": cfg.et_limit})
 
     # ------------------------------------------------------------- reference
     def reference(self, k: jax.Array) -> PlanarReference:
