@@ -17,6 +17,7 @@ _xla.configure()  # before the first JAX computation: keeps MJX physics fast on 
 from envs_mjx.base import (  # noqa: E402
     AutoResetWrapper,
     EpisodeWrapper,
+    PoolResetWrapper,
     RobotEnv,
     VmapWrapper,
     sanitize_action,
@@ -54,6 +55,7 @@ __all__ = [
     "AutoResetWrapper",
     "ConfigError",
     "EpisodeWrapper",
+    "PoolResetWrapper",
     "RobotEnv",
     "VmapWrapper",
     "env_class",

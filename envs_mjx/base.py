@@ -26,11 +26,15 @@ Wrappers (:func:`wrap_for_training` composes them):
   ``done``, ``metrics``, ``truncation`` and the episode totals, and the terminal
   observation in ``info["final_obs"]`` for bootstrapping.
 * :class:`VmapWrapper` — maps the unbatched env over a leading lane axis.
+* :class:`PoolResetWrapper` — a batched alternative to the two above: finished lanes take
+  a pre-drawn episode from a pool that is refreshed by a fixed number of resets per step
+  (``refresh`` × lanes), so a step costs ``refresh`` resets per lane instead of one.
 """
 
 from __future__ import annotations
 
 import abc
+import math
 from collections.abc import Mapping
 from typing import Any, ClassVar
 
@@ -43,6 +47,7 @@ from envs_mjx.config import apply_overrides
 __all__ = [
     "AutoResetWrapper",
     "EpisodeWrapper",
+    "PoolResetWrapper",
     "RobotEnv",
     "State",
     "VmapWrapper",
@@ -230,16 +235,153 @@ class VmapWrapper(_ParamWrapper):
         return jax.vmap(self.env.step)(state, action)
 
 
-def wrap_for_training(env: Env, episode_length: int | None = None, num_envs: int | None = None) -> Env:
-    """``VmapWrapper(AutoResetWrapper(EpisodeWrapper(env)))``.
+class PoolResetWrapper(_ParamWrapper):
+    """Batched auto-reset from a pool of pre-drawn episodes (wraps an *unbatched* env).
+
+    Every lane ``i`` owns a pool entry: a complete reset state drawn in advance.  At each
+    step, ``R = round(refresh * G)`` entries of every group of ``G`` lanes are redrawn with
+    ``env.reset`` (vmapped over the ``R`` entries only), chosen in this order: entries of
+    lanes that finished *this* step, then entries already consumed (stale), then the oldest.
+    A finished lane then starts its new episode from its entry.  So while at most ``R`` lanes
+    of a group finish per step, every new episode is a fresh draw made at that step, exactly
+    as with :class:`AutoResetWrapper`, at ``refresh`` of its cost.  When more finish at once
+    (for example all lanes reaching the time limit together), the extra lanes start from
+    entries drawn up to ``G / R`` steps earlier, or, if their entry was consumed and not yet
+    redrawn, repeat it; ``info["pool_reused"]`` marks those repeats.
+
+    Entries are drawn with the lane's episode parameters of the step that draws them, so a
+    schedule change reaches new episodes within ``G / R`` steps.  Groups never span devices
+    when ``G`` divides the lanes per device, and a run's result depends on ``G`` and ``R``,
+    not on the number of devices.  ``info`` keeps what :class:`AutoResetWrapper` keeps
+    (``final_obs``, the finished step's ``truncation`` and episode totals, ``params``), plus
+    ``reset_pool``, ``pool_stale``, ``pool_age`` and ``pool_reused``, all ``[B, ...]``.
+
+    Args:
+      env: an unbatched env (usually an :class:`EpisodeWrapper`).
+      batch_size: if given, ``reset`` takes one key and splits it into this many lanes;
+        otherwise ``reset`` takes ``[B, 2]`` keys.
+      refresh: fraction of each group redrawn per step, in ``(0, 1]``.
+      group: lanes per group ``G`` (the effective group is ``gcd(B, group)``).
+    """
+
+    keep_keys = AutoResetWrapper.keep_keys
+
+    def __init__(self, env: Env, batch_size: int | None = None, refresh: float = 0.125, group: int = 256):
+        super().__init__(env)
+        if not 0.0 < float(refresh) <= 1.0:
+            raise ValueError(f"refresh={refresh!r} must be in (0, 1] (fraction of lanes redrawn per step)")
+        if int(group) < 1:
+            raise ValueError(f"group={group!r} must be >= 1")
+        self.batch_size = batch_size
+        self.refresh = float(refresh)
+        self.group = int(group)
+
+    def group_sizes(self, num_lanes: int) -> tuple[int, int]:
+        """``(G, R)``: lanes per group and entries redrawn per group and step."""
+        g = math.gcd(int(num_lanes), self.group)
+        return g, max(1, min(g, round(self.refresh * g)))
+
+    def _draw(self, keys: jax.Array, params: Any, lane_params: bool) -> State:
+        """``[n, 2]`` keys -> ``n`` reset states (``params`` per lane when ``lane_params``)."""
+        if params is None:
+            return jax.vmap(self.env.reset)(keys)
+        return jax.vmap(lambda k, p: _reset(self.env, k, p), in_axes=(0, 0 if lane_params else None))(keys, params)
+
+    def _entry(self, state: State) -> dict[str, Any]:
+        info = {k: v for k, v in state.info.items() if k not in self.keep_keys}
+        return {"pipeline_state": state.pipeline_state, "obs": state.obs, "info": info}
+
+    def reset(self, rng: jax.Array, params: Any = None) -> State:
+        keys = jax.random.split(rng, self.batch_size) if self.batch_size is not None else rng
+        split = jax.vmap(lambda k: jax.random.split(k, 3))(keys)
+        state = self._draw(split[:, 0], params, False)
+        pool = self._draw(split[:, 1], params, False)
+        lanes = state.obs.shape[0]
+        info = dict(state.info)
+        info.update(
+            reset_key=split[:, 2],
+            final_obs=state.obs,
+            reset_pool=self._entry(pool),
+            pool_stale=jnp.zeros((lanes,), jnp.float32),
+            pool_age=jnp.zeros((lanes,), jnp.int32),
+            pool_reused=jnp.zeros((lanes,), jnp.float32),
+        )
+        return state.replace(info=info)
+
+    def step(self, state: State, action: jax.Array) -> State:
+        nstate = jax.vmap(self.env.step)(state, action)
+        lanes = nstate.obs.shape[0]
+        g, r = self.group_sizes(lanes)
+        grouped = jax.tree.map(lambda x: x.reshape((lanes // g, g) + x.shape[1:]), nstate)
+        out = jax.vmap(lambda s: self._group_step(s, r))(grouped)
+        return jax.tree.map(lambda x: x.reshape((lanes,) + x.shape[2:]), out)
+
+    def _group_step(self, nstate: State, r: int) -> State:
+        """One group's redraw and restart; every leaf is ``[G, ...]``."""
+        info = nstate.info
+        done = nstate.done > 0
+        stale = info["pool_stale"] > 0
+        big = 1 << 21
+        prio = done.astype(jnp.int32) * (2 * big) + stale.astype(jnp.int32) * big
+        prio = prio + jnp.minimum(info["pool_age"], big - 1)
+        _, idx = jax.lax.top_k(prio, r)
+        pairs = jax.vmap(jax.random.split)(info["reset_key"][idx])
+        params = info.get("params")
+        lane_params = None if params is None else jax.tree.map(lambda x: x[idx], params)
+        drawn = self._entry(self._draw(pairs[:, 1], lane_params, True))
+        pool = jax.tree.map(lambda old, new: old.at[idx].set(new), info["reset_pool"], drawn)
+        stale = stale.at[idx].set(False)
+        age = (info["pool_age"] + 1).at[idx].set(0)
+
+        def pick(a, b):
+            return jnp.where(done.reshape(done.shape + (1,) * (b.ndim - 1)), a, b)
+
+        new_info = dict(info)
+        new_info.update(jax.tree.map(pick, pool["info"], {k: info[k] for k in pool["info"]}))
+        new_info.update(
+            final_obs=nstate.obs,
+            reset_key=info["reset_key"].at[idx].set(pairs[:, 0]),
+            reset_pool=pool,
+            pool_stale=(stale | done).astype(jnp.float32),
+            pool_age=age,
+            pool_reused=(done & stale).astype(jnp.float32),
+        )
+        return nstate.replace(
+            pipeline_state=jax.tree.map(pick, pool["pipeline_state"], nstate.pipeline_state),
+            obs=pick(pool["obs"], nstate.obs),
+            info=new_info,
+        )
+
+
+def wrap_for_training(
+    env: Env,
+    episode_length: int | None = None,
+    num_envs: int | None = None,
+    *,
+    reset_refresh: float = 1.0,
+    reset_group: int = 256,
+) -> Env:
+    """The batched training env: time limit, auto-reset, lanes.
+
+    ``reset_refresh = 1`` (default): ``VmapWrapper(AutoResetWrapper(EpisodeWrapper(env)))``, a
+    fresh reset for every finished lane.  ``reset_refresh < 1``:
+    ``PoolResetWrapper(EpisodeWrapper(env))``, which redraws that fraction of the lanes'
+    pool entries per step (cheaper when a reset costs several steps).
 
     Args:
       env: an unbatched env.
       episode_length: time limit; defaults to ``env.episode_length`` when the env has one.
       num_envs: if given, ``reset`` takes one key and splits it into ``num_envs`` lanes.
+      reset_refresh: fraction of lanes redrawn per step, in ``(0, 1]``.
+      reset_group: lanes per pool group (see :class:`PoolResetWrapper`).
     """
     if episode_length is None:
         episode_length = getattr(env, "episode_length", None)
         if episode_length is None:
             raise ValueError("episode_length is required for an env without a default episode_length")
-    return VmapWrapper(AutoResetWrapper(EpisodeWrapper(env, episode_length)), batch_size=num_envs)
+    if not 0.0 < float(reset_refresh) <= 1.0:
+        raise ValueError(f"reset_refresh={reset_refresh!r} must be in (0, 1]")
+    timed = EpisodeWrapper(env, episode_length)
+    if float(reset_refresh) >= 1.0:
+        return VmapWrapper(AutoResetWrapper(timed), batch_size=num_envs)
+    return PoolResetWrapper(timed, batch_size=num_envs, refresh=reset_refresh, group=reset_group)

@@ -163,3 +163,90 @@ def test_brax_training_wrapper_accepts_base_env():
     state = jax.jit(env.reset)(jax.random.split(jax.random.PRNGKey(0), 3))
     state = jax.jit(env.step)(state, jnp.zeros((3, 1)))
     assert state.obs.shape == (3, 1)
+
+
+# ---- PoolResetWrapper ------------------------------------------------------------------
+
+
+def _run(env, state, actions):
+    step = jax.jit(env.step)
+    out = []
+    for a in actions:
+        state = step(state, a)
+        out.append(state)
+    return out
+
+
+def test_pool_reset_fresh_when_few_lanes_finish_and_keeps_final_step():
+    # refresh 1/2 of 4 lanes per step; lanes finish two at a time (max_steps 2, staggered):
+    # every finished lane is redrawn at the step it finishes, so every episode is new.
+    env = wrap_for_training(Toy(max_steps=2), num_envs=4, reset_refresh=0.5, reset_group=4)
+    assert env.group_sizes(4) == (4, 2)
+    state = jax.jit(env.reset)(jax.random.PRNGKey(1))
+    # stagger: lanes 0 and 1 start one step into their episode
+    state = state.replace(info={**state.info, "steps": jnp.array([1, 1, 0, 0], jnp.int32)})
+    starts, prev = [np.asarray(state.info["x0"])], state
+    for nstate in _run(env, state, [jnp.full((4, 1), 0.1)] * 6):
+        done = np.asarray(nstate.done) > 0
+        assert done.sum() == 2
+        np.testing.assert_allclose(nstate.info["final_obs"][done], prev.obs[done] + 0.05, rtol=1e-6)
+        np.testing.assert_array_equal(nstate.info["pool_reused"], 0.0)
+        # a new episode starts at its own start (obs == x0) with a zeroed episode clock
+        np.testing.assert_allclose(nstate.obs[done, 0], nstate.info["x0"][done])
+        np.testing.assert_array_equal(nstate.info["steps"][done], 0)
+        starts.append(np.asarray(nstate.info["x0"])[done])
+        prev = nstate
+    starts = np.concatenate(starts)
+    assert len(np.unique(starts.round(6))) == starts.size
+
+
+def test_pool_reset_burst_reuses_consumed_entries_and_counts_them():
+    # 4 lanes, 1 redraw per step, all lanes hit the time limit together every 2 steps.
+    env = wrap_for_training(Toy(max_steps=2), num_envs=4, reset_refresh=0.25, reset_group=4)
+    state = jax.jit(env.reset)(jax.random.PRNGKey(2))
+    zero = jnp.zeros((4, 1))
+    s1, s2, s3, s4 = _run(env, state, [zero] * 4)
+    # step 2: all finish; their entries were drawn at reset (one redrawn at step 1, one now):
+    # none had been consumed, so no repeats
+    assert np.asarray(s2.done).all()
+    np.testing.assert_array_equal(s2.info["pool_reused"], 0.0)
+    np.testing.assert_array_equal(s2.info["pool_stale"], 1.0)
+    # step 3 redraws one consumed entry; step 4 (all finish again) redraws one more for a
+    # finished lane: the two others restart from the episode they already played
+    np.testing.assert_array_equal(s3.info["pool_stale"].sum(), 3.0)
+    assert np.asarray(s4.done).all()
+    reused = np.asarray(s4.info["pool_reused"]) > 0
+    assert reused.sum() == 2
+    np.testing.assert_allclose(np.asarray(s4.info["x0"])[reused], np.asarray(s2.info["x0"])[reused])
+    assert np.all(np.asarray(s4.info["x0"])[~reused] != np.asarray(s2.info["x0"])[~reused])
+
+
+def test_pool_reset_draws_with_current_params():
+    env = envs_mjx.PoolResetWrapper(envs_mjx.EpisodeWrapper(Toy(), 1), batch_size=3, refresh=1.0, group=3)
+    state = env.reset(jax.random.PRNGKey(2), {"offset": jnp.asarray(10.0)})
+    assert np.all(np.asarray(state.obs) >= 11.0)
+    state = state.replace(info={**state.info, "params": {"offset": jnp.full((3,), -10.0)}})
+    state = jax.jit(env.step)(state, jnp.zeros((3, 1)))
+    assert np.all(np.asarray(state.obs) <= -8.0)
+    np.testing.assert_array_equal(state.info["params"]["offset"], -10.0)
+
+
+def test_pool_reset_groups_are_independent():
+    # lanes 0..3 of an 8-lane env with groups of 4 behave exactly like a 4-lane env with the
+    # same per-lane keys: what a device holding those lanes would compute
+    keys = jax.random.split(jax.random.PRNGKey(3), 8)
+    acts = [jnp.full((8, 1), 0.1 * (-1) ** t) for t in range(5)]
+    big = wrap_for_training(Toy(max_steps=2), reset_refresh=0.25, reset_group=4)
+    small = wrap_for_training(Toy(max_steps=2), reset_refresh=0.25, reset_group=4)
+    out8 = _run(big, big.reset(keys), acts)
+    out4 = _run(small, small.reset(keys[:4]), [a[:4] for a in acts])
+    for a, b in zip(out8, out4, strict=True):
+        np.testing.assert_allclose(a.obs[:4], b.obs, rtol=1e-6)
+        np.testing.assert_array_equal(a.info["pool_reused"][:4], b.info["pool_reused"])
+
+
+def test_pool_reset_rejects_bad_refresh():
+    with pytest.raises(ValueError, match=r"reset_refresh=0.*\(0, 1\]"):
+        wrap_for_training(Toy(), num_envs=2, reset_refresh=0.0)
+    with pytest.raises(ValueError, match="group=0"):
+        envs_mjx.PoolResetWrapper(Toy(), refresh=0.5, group=0)
