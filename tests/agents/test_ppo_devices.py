@@ -15,7 +15,7 @@ SCRIPT = textwrap.dedent(
     from tests.agents.test_ppo import TOY, Line
 
     assert len(jax.devices()) == 4, jax.devices()
-    cfg = TOY.replace(num_envs=8, minibatch_size=32, schedule=(), objective="clip")
+    cfg = TOY.replace(num_envs=8, minibatch_size=32, schedule=(), objective="clip", reset_group=2)
     probe = np.random.default_rng(0).uniform(-1, 1, (16, 2)).astype(np.float32)
     out = {}
     for n in (1, 4):

@@ -75,6 +75,13 @@ class PPOConfig:
     """Multiply rewards by this before computing returns."""
     episode_length: int = 0
     """Time limit in steps (0: the environment's own ``episode_length``)."""
+    reset_refresh: float = 0.125
+    """Auto-reset cost: the fraction of lanes whose next episode is drawn per step (``(0, 1]``).
+    Below 1, finished lanes start from a pool of pre-drawn episodes (``envs_mjx.PoolResetWrapper``);
+    1: a fresh reset for every finished lane, computed for every lane at every step."""
+    reset_group: int = 256
+    """Lanes per reset-pool group (the effective group is gcd(lanes per device, reset_group));
+    runs on different device counts agree when it divides the lanes per device."""
     schedule: tuple[tuple[float, str, float], ...] = ()
     """Episode-parameter schedule: entries (start fraction of training, name in
     state.info["params"], value); from each start on, the parameter takes the value, broadcast
@@ -100,6 +107,8 @@ class PPOConfig:
         check_range("max_grad_norm", self.max_grad_norm, 0.0)
         check_range("reward_scale", self.reward_scale, 0.0, lo_open=True)
         check_range("episode_length", self.episode_length, 0)
+        check_range("reset_refresh", self.reset_refresh, 0.0, 1.0, lo_open=True)
+        check_range("reset_group", self.reset_group, 1)
         if not self.sigma:
             raise ConfigError("sigma=() must have at least one value")
         for i, s in enumerate(self.sigma):
