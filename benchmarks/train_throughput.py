@@ -2,18 +2,21 @@
 
     python -m benchmarks.train_throughput                      # sizes chosen for the device
     python -m benchmarks.train_throughput --lanes 1024 4096 --brax-lanes 4096 --mode pd
+    python -m benchmarks.train_throughput --reset-refresh 0.125 1.0   # reset pool vs a fresh reset per lane
 
 For each lane count K our PPO (``jaxrl_robot.agents.ppo``) trains with N = 16 steps per lane per
 iteration and 4 actor + 4 critic updates on mini-batches of K·N/4; one call of the jitted chunk
 runs ``--chunk-iters`` iterations. Compilation is timed apart (``lower().compile()``), then the
 median of ``--repeats`` timed chunk calls (``block_until_ready``) gives env-steps/s (env steps
-include everything: acting, physics, returns, updates).
+include everything: acting, physics, returns, updates). ``--reset-refresh`` lists the auto-reset
+settings to run (``PPOConfig.reset_refresh``: below 1 the lanes restart from a pool of pre-drawn
+episodes, 1 draws a fresh reset for every lane at every step); the ratio uses the first.
 
 brax's ``ppo.train`` (``benchmarks/peers/brax_ppo.py``, with its labelled JAX-compat shim) runs on
 the same env object and device with the same K, N, four mini-batch updates per iteration and
 2 x 200 networks; its own per-epoch ``training/sps`` is used, the first (compiling) epoch dropped.
 
-Results: ``benchmarks/results/<device>-train_throughput.json`` and ``.md``.
+Results: ``benchmarks/results/<device>-train_throughput-<mode>.json`` and ``.md``.
 """
 
 from __future__ import annotations
@@ -42,12 +45,14 @@ def device_label() -> str:
     return label.replace(" ", "_").lower()
 
 
-def bench_ours(env: Any, lanes: int, unroll: int, chunk_iters: int, repeats: int, updates: int) -> dict[str, Any]:
+def bench_ours(
+    env: Any, lanes: int, unroll: int, chunk_iters: int, repeats: int, updates: int, reset_refresh: float
+) -> dict[str, Any]:
     """Steps/s of our PPO at ``lanes`` lanes (compile apart, median of repeats)."""
     cfg = PPOConfig(
         num_envs=lanes, unroll_length=unroll, minibatch_size=lanes * unroll // updates, actor_updates=updates,
         critic_updates=updates, batch_norm=False, sigma=(0.5,), actor_hidden=(200, 200), critic_hidden=(200, 200),
-        total_steps=lanes * unroll * chunk_iters, episode_length=int(env.episode_length),
+        total_steps=lanes * unroll * chunk_iters, episode_length=int(env.episode_length), reset_refresh=reset_refresh,
     )  # fmt: skip
     trainer = make_trainer(cfg, env, iterations_per_update=chunk_iters)
     state = jax.block_until_ready(jax.jit(trainer.init)(jax.random.PRNGKey(0)))
@@ -64,6 +69,7 @@ def bench_ours(env: Any, lanes: int, unroll: int, chunk_iters: int, repeats: int
     return {
         "impl": "jaxrl_robot",
         "lanes": lanes,
+        "reset_refresh": reset_refresh,
         "unroll": unroll,
         "steps_per_call": trainer.env_steps_per_update,
         "compile_s": compile_s,
@@ -89,12 +95,14 @@ def to_markdown(result: dict[str, Any]) -> str:
         f"{result['updates']} actor + {result['updates']} critic updates per iteration, {result['chunk_iters']} "
         f"iterations per timed call, median of {result['repeats']}.",
         "",
-        "| implementation | lanes | env-steps/s | compile s (brax: first epoch incl. compile) |",
-        "|---|---:|---:|---:|",
+        "| implementation | auto-reset | lanes | env-steps/s | compile s (brax: first epoch incl. compile) |",
+        "|---|---|---:|---:|---:|",
     ]
     for r in result["runs"]:
         comp = r.get("compile_s", r.get("first_epoch_s", float("nan")))
-        lines.append(f"| {r['impl']} | {r['lanes']} | {r['steps_per_s']:,.0f} | {comp:.1f} |")
+        refresh = r.get("reset_refresh")
+        reset = "cached first state" if refresh is None else ("fresh" if refresh >= 1 else f"pool, refresh {refresh:g}")
+        lines.append(f"| {r['impl']} | {reset} | {r['lanes']} | {r['steps_per_s']:,.0f} | {comp:.1f} |")
     if result.get("ratio") is not None:
         lines += ["", f"Ratio ours / brax at {result['ratio_lanes']} lanes: **{result['ratio']:.2f}x**; best ours / "
                   f"brax: **{result['best_ratio']:.2f}x**."]  # fmt: skip
@@ -111,16 +119,25 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--chunk-iters", type=int, default=4)
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--mode", default=None, help="arm7 physics mode (default: kinematic on CPU, pd otherwise)")
+    p.add_argument(
+        "--reset-refresh",
+        type=float,
+        nargs="+",
+        default=[PPOConfig().reset_refresh],
+        help="auto-reset refresh fractions for ours (the ratio uses the first)",
+    )
     p.add_argument("--no-brax", action="store_true")
     p.add_argument("--out", default=RESULTS)
     args = p.parse_args(argv)
     mode = args.mode or ("kinematic" if on_cpu else "pd")
     env = envs_mjx.make("arm7", mode=mode)
     runs = []
-    for lanes in args.lanes:
-        r = bench_ours(env, lanes, args.unroll, args.chunk_iters, args.repeats, args.updates)
-        print(f"ours  lanes={lanes:6d}  {r['steps_per_s']:12,.0f} steps/s  compile {r['compile_s']:.1f}s", flush=True)
-        runs.append(r)
+    for refresh in args.reset_refresh:
+        for lanes in args.lanes:
+            r = bench_ours(env, lanes, args.unroll, args.chunk_iters, args.repeats, args.updates, refresh)
+            print(f"ours  refresh={refresh:g} lanes={lanes:6d}  {r['steps_per_s']:12,.0f} steps/s  "
+                  f"compile {r['compile_s']:.1f}s", flush=True)  # fmt: skip
+            runs.append(r)
     brax_lanes = args.lanes if args.brax_lanes is None else args.brax_lanes
     if not args.no_brax:
         for lanes in brax_lanes:
@@ -146,7 +163,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "xla_flags": os.environ.get("XLA_FLAGS", ""),
         "runs": runs,
     }
-    ours = {r["lanes"]: r["steps_per_s"] for r in runs if r["impl"] == "jaxrl_robot"}
+    first = args.reset_refresh[0]
+    ours = {r["lanes"]: r["steps_per_s"] for r in runs if r["impl"] == "jaxrl_robot" and r["reset_refresh"] == first}
     theirs = {r["lanes"]: r["steps_per_s"] for r in runs if r["impl"] == "brax.ppo" and np.isfinite(r["steps_per_s"])}
     common = sorted(set(ours) & set(theirs))
     if common:
@@ -156,7 +174,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         result["best_ratio"] = max(ours.values()) / max(theirs.values())
         print(f"ratio ours/brax at {lanes} lanes: {result['ratio']:.2f}x; best/best {result['best_ratio']:.2f}x")
     os.makedirs(args.out, exist_ok=True)
-    stem = os.path.join(args.out, f"{result['device']}-train_throughput")
+    stem = os.path.join(args.out, f"{result['device']}-train_throughput-{mode}")
     with open(stem + ".json", "w") as f:
         json.dump(result, f, indent=2)
     with open(stem + ".md", "w") as f:
