@@ -33,6 +33,17 @@ with ``s_x, s_y`` the largest ``|x_r|``, ``|y_r|`` of the reference (at least 1;
 overrides), ``C = (C_v, C_w)`` the action scale, ``s_e = obs_error_scale`` and errors
 ``e = reference − real`` in the world frame; velocities are the world-frame ``(ẋ, ẏ, θ̇)``.
 
+``observation="extended"`` appends a 5-element preview of the reference in the robot frame, in
+action units (19-dim)::
+
+    [d_∥ / (C_v dt), d_⊥ / (C_v dt), wrap(θ_r,k+1 − θ) / (C_w dt), v_r,k+½ / C_v, w_r,k+½ / C_w]
+
+with ``(d_∥, d_⊥)`` the step ``(x_r,k+1 − x, y_r,k+1 − y)`` to the next reference position rotated
+into the robot frame (Eq. 3.16) and ``(v_r, w_r)`` the reference's command at the middle of the
+step (:meth:`Unicycle.reference_action`).  The thesis's 14 elements carry the same information
+(the reference rate is ``vel + e_vel``), but only through products with ``sin θ``/``cos θ`` and an
+extrapolation in time; the preview states it as the quantities the action must match.
+
 Reward (Eq. 3.23), unscaled errors: ``r_p = exp(−a_p (e_x² + e_y² + e_sinθ² + e_cosθ²))``,
 ``r_v = exp(−a_v (e_ẋ² + e_ẏ² + e_θ̇²))``, ``r = ω_p r_p + ω_v r_v`` with ``ω_p = 0.4``, ``ω_v = 0.6``,
 ``a_p = 1``, ``a_v = 2``; zero from the step that triggers early termination on.
@@ -61,10 +72,20 @@ from envs_mjx.base import State, sanitize_action
 from envs_mjx.config import ConfigError, check_choice, check_range, check_vector
 from envs_mjx.trajectories import PLANAR_TRAJECTORIES, PlanarReference, default_duration, planar_reference
 
-__all__ = ["MODES", "Unicycle", "UnicycleConfig", "build_model", "unicycle_reward", "wheel_speeds", "wheel_torques"]
+__all__ = [
+    "MODES",
+    "OBSERVATIONS",
+    "Unicycle",
+    "UnicycleConfig",
+    "build_model",
+    "unicycle_reward",
+    "wheel_speeds",
+    "wheel_torques",
+]
 
 ASSET = os.path.join(os.path.dirname(__file__), "assets", "unicycle.xml")
 MODES = ("dynamic", "kinematic")
+OBSERVATIONS = ("thesis", "extended")
 
 # Per-trajectory action scale C = (v_max, w_max): the sine needs v ≈ 1.08 m/s and |w| ≤ 0.08 rad/s,
 # the ellipse v ≤ π/4 m/s and w ≤ π/4 rad/s (thesis: only the action scale differs between them).
@@ -115,6 +136,10 @@ class UnicycleConfig:
     """Position errors are divided by this in the observation (m)."""
     obs_pos_scale: tuple[float, float] | None = None
     """(s_x, s_y); None: largest |x_r|, |y_r| of the reference, at least 1."""
+    observation: str = "thesis"
+    """'thesis': the 14-dim vector of §3.5.4; 'extended': those 14 plus 5 reference-preview
+    elements in the robot frame (the step to the next reference pose and the reference's own
+    command for this step, both in action units; module docstring)."""
     rsi: tuple[float, float] = (0.0, 1.0)
     """Default RSI window [start_lo, start_hi] (fractions of the reference)."""
     et_threshold: float = 0.3
@@ -124,6 +149,7 @@ class UnicycleConfig:
 
     def validate(self) -> None:
         check_choice("mode", self.mode, MODES)
+        check_choice("observation", self.observation, OBSERVATIONS)
         check_choice("trajectory", self.trajectory, PLANAR_TRAJECTORIES)
         check_range("dt", self.dt, 0.0, lo_open=True)
         if self.duration is not None:
@@ -246,7 +272,7 @@ class Unicycle(tracking.TrackingEnv):
     # ----------------------------------------------------------------- sizes
     @property
     def observation_size(self) -> int:
-        return 14
+        return 19 if self.config.observation == "extended" else 14
 
     @property
     def action_size(self) -> int:
@@ -275,19 +301,36 @@ class Unicycle(tracking.TrackingEnv):
         )
         return pos_err, ref.vel - vel
 
-    def _obs(self, pose: jax.Array, vel: jax.Array, pos_err: jax.Array, vel_err: jax.Array) -> jax.Array:
-        """The 14-dim observation of the module docstring."""
+    def preview(self, k: jax.Array, pose: jax.Array) -> jax.Array:
+        """The 5 reference-preview elements of ``observation="extended"`` at step ``k``, ``[5]``.
+
+        ``[d_∥/(C_v dt), d_⊥/(C_v dt), wrap(θ_r,k+1 − θ)/(C_w dt), v_r/C_v, w_r/C_w]`` (module
+        docstring); ``pose`` is the robot's ``(x, y, θ)`` at step ``k``.
+        """
+        dt = self.config.dt
+        nxt = self.reference(k + 1).pos
+        c, s = jnp.cos(pose[2]), jnp.sin(pose[2])
+        dx, dy = nxt[0] - pose[0], nxt[1] - pose[1]
+        step = jnp.stack([c * dx + s * dy, -s * dx + c * dy]) / (self._scale[0] * dt)  # Eq. 3.16
+        turn = tracking.wrap_angle(nxt[2] - pose[2]) / (self._scale[1] * dt)
+        return jnp.concatenate([step, turn[None], self.reference_action(k)])
+
+    def _obs(
+        self, pose: jax.Array, vel: jax.Array, pos_err: jax.Array, vel_err: jax.Array, k: jax.Array
+    ) -> jax.Array:
+        """The 14-dim (``thesis``) or 19-dim (``extended``) observation of the module docstring."""
         vscale = jnp.stack([self._scale[0], self._scale[0], self._scale[1]])
-        return jnp.concatenate(
-            [
-                pose[:2] / self._pos_scale,
-                jnp.stack([jnp.sin(pose[2]), jnp.cos(pose[2])]),
-                vel / vscale,
-                pos_err[:2] / self.config.obs_error_scale,
-                pos_err[2:],
-                vel_err / vscale,
-            ]
-        )
+        parts = [
+            pose[:2] / self._pos_scale,
+            jnp.stack([jnp.sin(pose[2]), jnp.cos(pose[2])]),
+            vel / vscale,
+            pos_err[:2] / self.config.obs_error_scale,
+            pos_err[2:],
+            vel_err / vscale,
+        ]
+        if self.config.observation == "extended":
+            parts.append(self.preview(k, pose))
+        return jnp.concatenate(parts)
 
     def _metrics(self, r_p, r_v, ref, pose, lateral, et_count, terminated, invalid) -> dict[str, jax.Array]:
         err = tracking.axis_errors(ref.pos, pose, self.wrap_axes)
@@ -349,7 +392,7 @@ class Unicycle(tracking.TrackingEnv):
         }
         return State(
             pipeline_state=data,
-            obs=self._obs(pose, vel, pos_err, vel_err),
+            obs=self._obs(pose, vel, pos_err, vel_err, k0),
             reward=zero,
             done=zero,
             metrics=self._metrics(zero, zero, ref, pose, zero, zero, zero, zero),
@@ -395,7 +438,7 @@ class Unicycle(tracking.TrackingEnv):
         )
         return state.replace(
             pipeline_state=data,
-            obs=self._obs(pose, vel, pos_err, vel_err),
+            obs=self._obs(pose, vel, pos_err, vel_err, k),
             reward=reward,
             done=jnp.maximum(terminated, ref_end),
             metrics=self._metrics(r_p, r_v, ref, pose, lateral, et_count, terminated, invalid),

@@ -87,6 +87,40 @@ def test_registry_and_config_errors():
         Unicycle(mode="kinematic", duration=5.0, max_steps=10)
     with pytest.raises(ConfigError, match=r"mass=0.*\(0, inf\]"):
         Unicycle(mass=0.0)
+    with pytest.raises(ConfigError, match="observation='full'.*'thesis', 'extended'"):
+        Unicycle(observation="full")
+
+
+def test_extended_observation_hand_computed():
+    """The 5 preview elements at the start of the sine (pose = reference at t = 0), by hand."""
+    env = Unicycle(mode="kinematic", trajectory="sine", observation="extended")
+    thesis = Unicycle(mode="kinematic", trajectory="sine")
+    assert (env.observation_size, thesis.observation_size) == (19, 14)
+    state = jax.jit(env.reset)(jax.random.PRNGKey(0), _start(0.0))
+    obs = np.asarray(state.obs)
+    assert obs.shape == (19,)
+    np.testing.assert_allclose(obs[:14], jax.jit(thesis.reset)(jax.random.PRNGKey(0), _start(0.0)).obs, atol=1e-6)
+    th0 = math.atan(0.4)  # Eq. 3.25 at t = 0; the robot starts there
+    x1, y1, th1 = 0.1, 2 * math.sin(0.02), math.atan(0.4 * math.cos(0.02))  # reference at t = dt
+    d_par = math.cos(th0) * x1 + math.sin(th0) * y1
+    d_perp = -math.sin(th0) * x1 + math.cos(th0) * y1
+    # Reference command at t = dt/2: v = |(1, 0.4 cos(0.01))|, w = θ̇_r = -0.08 sin(0.01) / v² (sine: ẋ = 1).
+    v_mid = math.hypot(1.0, 0.4 * math.cos(0.01))
+    w_mid = -0.08 * math.sin(0.01) / v_mid**2
+    c_v, c_w, dt = 1.5, 0.5, 0.1
+    expect = [d_par / (c_v * dt), d_perp / (c_v * dt), (th1 - th0) / (c_w * dt), v_mid / c_v, w_mid / c_w]
+    np.testing.assert_allclose(obs[14:], expect, rtol=1e-4, atol=1e-5)
+
+
+def test_extended_observation_in_action_units_tracks_with_a_linear_policy():
+    """Oracle: a = (d_∥, turn + 2 d_⊥) read off the preview tracks the sine from t = 0 with per-axis
+    error sums well below the thesis's (Table 5.4: 2.998, 2.961, 1.495); the residual is the Euler
+    update's (Eq. 3.18 at the heading of the start of each step)."""
+    env = Unicycle(mode="kinematic", trajectory="sine", observation="extended")
+    res = tracking.test_episode(env, lambda o: jnp.stack([o[14], o[16] + 2.0 * o[15]]))
+    assert res["steps"] == env.max_steps == 314
+    assert np.all(res["sum_abs_error"] < [0.5, 1.5, 1.0]), res["sum_abs_error"]
+    assert np.all(res["abs_error"].max(axis=0) < [0.01, 0.01, 0.01])
 
 
 def test_kinematic_constant_command_gives_closed_form_circle(kin_sine):
