@@ -12,6 +12,13 @@ Networks are plain ``flax.linen`` modules: ``variables = net.init(key, obs)`` an
   state-independent log-std initialised at ``log σ``. With ``batch_norm=True`` the input and
   every hidden pre-activation are batch-normalised (thesis Fig. 4.2–4.3): batch statistics
   while training, moving averages for acting and evaluation (SPEC §A11).
+* :class:`BatchRenorm` — the actor's default batch-norm layer: batch renormalisation (Ioffe,
+  2017). Plain batch-norm trains the policy that normalises each mini-batch by its own
+  statistics, but acts and is evaluated with the moving averages; with a few lanes a mini-batch
+  holds only a few goals, so the two policies differ and the trained one is never the one that
+  acts. Batch renormalisation keeps the batch statistics in the gradient while its outputs in
+  training equal the moving-average ones (up to the r/d clipping), so training, acting and
+  evaluation use one policy.
 
 Use :func:`apply_actor` to call an actor with or without batch-norm in either mode, and the
 ``gaussian_*`` functions for log-probabilities, entropy and KL divergence. Optional
@@ -32,7 +39,9 @@ import jax.numpy as jnp
 from jaxrl_robot.types import RunningStats
 
 __all__ = [
+    "BN_MODES",
     "MLP",
+    "BatchRenorm",
     "Critic",
     "GaussianActor",
     "apply_actor",
@@ -46,6 +55,8 @@ __all__ = [
 ]
 
 _LOG_2PI = jnp.log(2.0 * jnp.pi)
+
+BN_MODES = ("renorm", "batch")
 
 
 def _dense(features: int, scale: float, use_bias: bool = True) -> nn.Dense:
@@ -75,6 +86,78 @@ class Critic(nn.Module):
         return _dense(1, 1.0)(x)[..., 0]
 
 
+class BatchRenorm(nn.Module):
+    """Batch renormalisation of ``[..., B, F]`` features (Ioffe, 2017, Algorithm 1).
+
+    Training: ``x̂ = (x - μ_B) / σ_B · r + d`` with ``r = sg(clip(σ_B / σ, 1/r_max, r_max))`` and
+    ``d = sg(clip((μ_B - μ) / σ, -d_max, d_max))``, where ``μ_B, σ_B² + ε`` are the (masked)
+    statistics of the batch and ``μ, σ² + ε`` the moving averages. Unclipped, ``x̂`` equals
+    ``(x - μ) / σ`` — the acting/evaluation output — while the gradient still flows through
+    the batch statistics as in batch-norm (thesis Fig. 4.2). The moving averages then advance
+    ``μ ← m μ + (1 - m) μ_B``, ``σ² ← m σ² + (1 - m) σ_B²`` (as ``flax.linen.BatchNorm``).
+    Evaluation: ``x̂ = (x - μ) / σ``. Output ``scale · x̂ + bias``. Variables are named as in
+    ``flax.linen.BatchNorm`` (``params``: scale, bias; ``batch_stats``: mean, var).
+
+    Attributes:
+      momentum: m.
+      epsilon: ε added to the variances.
+      r_max, d_max: clipping of the corrections (``r_max = 1, d_max = 0`` is plain batch-norm).
+      axis_name: mapped axis over which the batch statistics are pooled in training.
+    """
+
+    momentum: float = 0.99
+    epsilon: float = 1e-3
+    r_max: float = 3.0
+    d_max: float = 5.0
+    axis_name: str | None = None
+
+    @nn.compact
+    def __call__(self, x: jax.Array, use_running_average: bool, mask: jax.Array | None = None) -> jax.Array:
+        """``x [..., B, F] -> [..., B, F]``; ``mask`` broadcastable to ``x``: rows counted in the statistics."""
+        features = x.shape[-1]
+        scale = self.param("scale", nn.initializers.ones, (features,))
+        bias = self.param("bias", nn.initializers.zeros, (features,))
+        ra_mean = self.variable("batch_stats", "mean", lambda: jnp.zeros((features,), jnp.float32))
+        ra_var = self.variable("batch_stats", "var", lambda: jnp.ones((features,), jnp.float32))
+        sigma = jnp.sqrt(ra_var.value + self.epsilon)
+        # y = scale · x̂ + bias written as x · a + b with per-feature a, b [F]: one multiply-add per
+        # element (the longer per-element form, under vmap, crashed XLA's CPU fusion emitter).
+        if use_running_average:
+            a = scale / sigma
+            b = bias - ra_mean.value * a
+        else:
+            mean_b, var_b = self._batch_stats(x, mask)
+            sigma_b = jnp.sqrt(var_b + self.epsilon)
+            r = jax.lax.stop_gradient(jnp.clip(sigma_b / sigma, 1.0 / self.r_max, self.r_max))
+            d = jax.lax.stop_gradient(jnp.clip((mean_b - ra_mean.value) / sigma, -self.d_max, self.d_max))
+            a = scale * r / sigma_b
+            b = bias + scale * d - mean_b * a
+            if not self.is_initializing():
+                m = self.momentum
+                ra_mean.value = m * ra_mean.value + (1.0 - m) * jax.lax.stop_gradient(mean_b)
+                ra_var.value = m * ra_var.value + (1.0 - m) * jax.lax.stop_gradient(var_b)
+        return x * a + b
+
+    def _batch_stats(self, x: jax.Array, mask: jax.Array | None) -> tuple[jax.Array, jax.Array]:
+        """Mean and (biased) variance ``[F]`` over every axis but the last, pooled over ``axis_name``."""
+        axes = tuple(range(x.ndim - 1))
+        if mask is None:
+            mean, mean_sq = jnp.mean(x, axis=axes), jnp.mean(x * x, axis=axes)
+            if self.axis_name is not None:
+                mean, mean_sq = jax.lax.pmean(mean, self.axis_name), jax.lax.pmean(mean_sq, self.axis_name)
+            return mean, jnp.maximum(mean_sq - mean * mean, 0.0)
+        w = jnp.broadcast_to(mask, x.shape[:-1] + (1,)).astype(x.dtype)
+        sums = jnp.sum(jnp.concatenate([x * w, w], axis=-1), axis=axes)  # [F + 1]: Σ w x, Σ w
+        if self.axis_name is not None:
+            sums = jax.lax.psum(sums, self.axis_name)
+        total, count = sums[:-1], sums[-1]
+        mean = total / jnp.maximum(count, 1.0)
+        sq = jnp.sum(((x - mean) ** 2) * w, axis=axes)
+        if self.axis_name is not None:
+            sq = jax.lax.psum(sq, self.axis_name)
+        return mean, sq / jnp.maximum(count, 1.0)
+
+
 class GaussianActor(nn.Module):
     """Diagonal-Gaussian policy head: ``obs [..., D] -> (mean [..., A], log_std [..., A])``.
 
@@ -91,6 +174,9 @@ class GaussianActor(nn.Module):
       bn_axis_name: mapped axis name over which batch statistics are averaged (set it when
         the actor runs inside ``shard_map``/``vmap`` with a named axis so that every device
         normalises with the global mini-batch statistics).
+      bn_mode: ``'renorm'`` → :class:`BatchRenorm` (training outputs equal the acting ones);
+        ``'batch'`` → plain ``flax.linen.BatchNorm`` (training normalises by the mini-batch alone).
+      bn_r_max, bn_d_max: clipping of batch renormalisation's corrections r and d.
     """
 
     action_size: int
@@ -101,6 +187,9 @@ class GaussianActor(nn.Module):
     bn_momentum: float = 0.99
     bn_epsilon: float = 1e-3
     bn_axis_name: str | None = None
+    bn_mode: str = "renorm"
+    bn_r_max: float = 3.0
+    bn_d_max: float = 5.0
 
     @nn.compact
     def __call__(
@@ -108,11 +197,11 @@ class GaussianActor(nn.Module):
     ) -> tuple[jax.Array, jax.Array]:
         x = obs
         if self.batch_norm:
-            x = self._bn(x, train, mask)
-        for width in self.hidden:
+            x = self._bn(x, train, mask, 0)
+        for i, width in enumerate(self.hidden):
             x = _dense(width, jnp.sqrt(2.0), use_bias=not self.batch_norm)(x)
             if self.batch_norm:
-                x = self._bn(x, train, mask)
+                x = self._bn(x, train, mask, i + 1)
             x = nn.relu(x)
         mean = jnp.tanh(_dense(self.action_size, 0.01)(x))
         sigma = jnp.broadcast_to(jnp.asarray(self.sigma, jnp.float32), (self.action_size,))
@@ -122,14 +211,22 @@ class GaussianActor(nn.Module):
             log_std = jnp.log(sigma)
         return mean, jnp.broadcast_to(log_std, mean.shape)
 
-    def _bn(self, x: jax.Array, train: bool, mask: jax.Array | None) -> jax.Array:
+    def _bn(self, x: jax.Array, train: bool, mask: jax.Array | None, index: int) -> jax.Array:
         # mask [B] of the rows whose batch statistics count (rows past a worker's episode end).
         row_mask = None if mask is None or not train else jnp.asarray(mask, bool)[..., None]
+        axis_name = self.bn_axis_name if train else None
+        name = f"BatchNorm_{index}"  # one variable layout for both layers (checkpoints, tests)
+        if self.bn_mode not in BN_MODES:
+            raise ValueError(f"bn_mode={self.bn_mode!r} is not one of {', '.join(map(repr, BN_MODES))}")
+        if self.bn_mode == "renorm":
+            layer = BatchRenorm(self.bn_momentum, self.bn_epsilon, self.bn_r_max, self.bn_d_max, axis_name, name=name)
+            return layer(x, use_running_average=not train, mask=row_mask)
         return nn.BatchNorm(
             use_running_average=not train,
             momentum=self.bn_momentum,
             epsilon=self.bn_epsilon,
-            axis_name=self.bn_axis_name if train else None,
+            axis_name=axis_name,
+            name=name,
         )(x, mask=row_mask)
 
 

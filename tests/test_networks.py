@@ -1,4 +1,4 @@
-"""Actor/critic shapes, fixed vs learned σ, batch-norm train vs eval, Gaussian helpers."""
+"""Actor/critic shapes, fixed vs learned σ, batch-norm and batch renormalisation train vs eval, Gaussian helpers."""
 
 import math
 
@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxrl_robot.networks import (
+    BatchRenorm,
     Critic,
     GaussianActor,
     apply_actor,
@@ -46,7 +47,7 @@ def test_learned_log_std_is_a_parameter_with_gradient():
 
 
 def test_batch_norm_uses_batch_stats_in_training_and_moving_averages_in_eval():
-    actor = GaussianActor(action_size=1, hidden=(6,), batch_norm=True, bn_momentum=0.5)
+    actor = GaussianActor(action_size=1, hidden=(6,), batch_norm=True, bn_momentum=0.5, bn_mode="batch")
     key = jax.random.PRNGKey(0)
     obs = 3.0 + 2.0 * jax.random.normal(key, (64, 2))
     variables = actor.init(jax.random.PRNGKey(1), obs)
@@ -71,6 +72,86 @@ def test_batch_norm_uses_batch_stats_in_training_and_moving_averages_in_eval():
         _, new_stats = apply_actor(actor, params, new_stats, obs, train=True)
     (m_eval2, _), _ = apply_actor(actor, params, new_stats, obs, train=False)
     np.testing.assert_allclose(m_eval2, m_train, atol=2e-3)
+
+
+def test_batch_renorm_hand_computed_training_output_moving_averages_and_gradient():
+    eps = 1e-3
+    layer = BatchRenorm(momentum=0.9, epsilon=eps)
+    x = jnp.array([[0.0, 1.0], [2.0, 1.0], [4.0, 1.0]])  # batch mean [2, 1], biased var [8/3, 0]
+    variables = layer.init(jax.random.PRNGKey(0), x, use_running_average=True)
+    stats = {"mean": jnp.array([1.0, 0.0]), "var": jnp.array([4.0, 1.0])}
+    params = {"scale": jnp.array([2.0, 1.0]), "bias": jnp.array([0.5, 0.0])}
+    assert set(variables["params"]) == set(params) and set(variables["batch_stats"]) == set(stats)
+
+    def train(p, inp):
+        return layer.apply({"params": p, "batch_stats": stats}, inp, use_running_average=False, mutable=["batch_stats"])
+
+    y, upd = train(params, x)
+    # Unclipped (r = sqrt((8/3 + ε)/(4 + ε)) ∈ [1/3, 3], d = 1/sqrt(4 + ε)): (x - μ)/σ with the moving stats.
+    expected = np.array(params["scale"]) * (np.array(x) - [1.0, 0.0]) / np.sqrt(np.array([4.0, 1.0]) + eps)
+    np.testing.assert_allclose(y[:, 0], expected[:, 0] + 0.5, rtol=1e-5)
+    # Column 2 is constant in the batch: r = sqrt(ε / (1 + ε)) < 1/3 is clipped, d = 1/sqrt(1 + ε):
+    # x̂ = 0 · r + d.
+    np.testing.assert_allclose(y[:, 1], 1.0 / np.sqrt(1.0 + eps), rtol=1e-5)
+    y_eval = layer.apply({"params": params, "batch_stats": stats}, x, use_running_average=True)
+    np.testing.assert_allclose(y_eval[:, 0], y[:, 0], rtol=1e-5)
+    np.testing.assert_allclose(upd["batch_stats"]["mean"], [0.9 * 1 + 0.1 * 2, 0.1 * 1.0], rtol=1e-6)
+    np.testing.assert_allclose(upd["batch_stats"]["var"], [0.9 * 4 + 0.1 * 8 / 3, 0.9], rtol=1e-6)
+    # Gradients flow through the batch statistics: Σ_i y_i does not depend on the inputs in
+    # training (the batch mean is subtracted), but does by n·scale/σ in evaluation.
+    g_train = jax.grad(lambda inp: jnp.sum(train(params, inp)[0][:, 0]))(x)
+    np.testing.assert_allclose(g_train[:, 0], 0.0, atol=1e-6)
+    g_eval = jax.grad(lambda inp: jnp.sum(layer.apply({"params": params, "batch_stats": stats}, inp, True)[:, 0]))(x)
+    np.testing.assert_allclose(g_eval[:, 0], 2.0 / np.sqrt(4.0 + eps), rtol=1e-5)
+    # Masked rows do not count in the statistics.
+    mask = jnp.array([[True], [True], [False]])
+    _, upd_m = layer.apply(
+        {"params": params, "batch_stats": stats}, x, use_running_average=False, mask=mask, mutable=["batch_stats"]
+    )
+    np.testing.assert_allclose(upd_m["batch_stats"]["mean"][0], 0.9 * 1 + 0.1 * 1.0, rtol=1e-6)
+    np.testing.assert_allclose(upd_m["batch_stats"]["var"][0], 0.9 * 4 + 0.1 * 1.0, rtol=1e-6)
+
+
+def _few_goal_batches(key, count, lanes=4, steps=8):
+    """``[count, lanes * steps, 3]`` thesis-like mini-batches: per lane one goal (2 features,
+    spread 3 around 1) held for all its steps, plus a feature that changes every step."""
+    k_goal, k_x = jax.random.split(key)
+    goal = 1.0 + 3.0 * jax.random.normal(k_goal, (count, lanes, 1, 2))
+    goal = jnp.broadcast_to(goal, (count, lanes, steps, 2))
+    x = 0.5 * jax.random.normal(k_x, (count, lanes, steps, 1))
+    return jnp.concatenate([goal, x], axis=-1).reshape(count, lanes * steps, 3)
+
+
+def _settled_actor(mode: str):
+    """Actor (BN, last layer scaled up so actions depend on the state), moving averages (decay 0.99)
+    after 200 training calls on few-goal mini-batches, and a fresh mini-batch."""
+    actor = GaussianActor(action_size=2, hidden=(16, 16), batch_norm=True, bn_mode=mode, bn_momentum=0.99)
+    batches = _few_goal_batches(jax.random.PRNGKey(0), 201)
+    variables = actor.init(jax.random.PRNGKey(1), batches[0])
+    params = dict(variables["params"])
+    params["Dense_2"] = jax.tree.map(lambda w: 100.0 * w, params["Dense_2"])
+
+    def settle(stats, batch):
+        return apply_actor(actor, params, stats, batch, train=True)[1], None
+
+    stats, _ = jax.lax.scan(settle, variables["batch_stats"], batches[:-1])
+    return actor, params, stats, batches[-1]
+
+
+def test_batch_renorm_actor_trains_the_policy_it_acts_with_on_few_goal_minibatches():
+    """The thesis preset's failure: 4 lanes give mini-batches of 4 goals. With plain batch-norm
+    the training-mode policy (each mini-batch's own statistics) is far from the acting policy
+    (moving averages) even when the moving averages have settled; batch renormalisation makes
+    them equal."""
+    gaps = {}
+    for mode in ("batch", "renorm"):
+        actor, params, stats, batch = _settled_actor(mode)
+        (m_train, _), _ = apply_actor(actor, params, stats, batch, train=True)
+        (m_eval, _), _ = apply_actor(actor, params, stats, batch, train=False)
+        gaps[mode] = float(np.max(np.abs(m_train - m_eval)))
+    gap_bn, gap_renorm = gaps["batch"], gaps["renorm"]
+    assert gap_bn > 0.1, gap_bn
+    assert gap_renorm < 1e-4, gap_renorm
 
 
 def test_gaussian_helpers_hand_computed():

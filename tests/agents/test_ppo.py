@@ -16,10 +16,13 @@ from jaxrl_robot.agents.ppo import (
     adapt_kl_beta,
     clipped_surrogate_loss,
     kl_penalty_loss,
+    make_actor_loss,
+    make_networks,
     make_train,
     make_trainer,
     value_loss,
 )
+from jaxrl_robot.networks import apply_actor, gaussian_sample
 
 # ---------------------------------------------------------------------------------------------
 # losses, hand-computed
@@ -213,3 +216,43 @@ def test_make_train_vmaps_over_seeds_and_matches_chunked_runs(toy):
     )
     kernels = states.actor_params["Dense_0"]["kernel"]
     assert not np.allclose(kernels[0], kernels[1])
+
+
+# ---------------------------------------------------------------------------------------------
+# batch-norm actor: π_old is the policy that acted
+
+
+def _first_step_clip_fraction_and_kl(mode: str) -> tuple[float, float]:
+    """PPO's actor loss at unchanged parameters on a thesis-like mini-batch (4 lanes x 8 steps, one
+    goal per lane), π_old = the acting policy after the moving averages (decay 0.99) have settled
+    over 200 such mini-batches. Returns (clip fraction, KL(π_old ‖ π_θ))."""
+    k_goal, k_x, k_init, k_act = jax.random.split(jax.random.PRNGKey(0), 4)
+    goals = jnp.broadcast_to(1.0 + 3.0 * jax.random.normal(k_goal, (201, 4, 1, 2)), (201, 4, 8, 2))
+    moves = 0.5 * jax.random.normal(k_x, (201, 4, 8, 1))
+    batches = jnp.concatenate([goals, moves], -1).reshape(201, 32, 3)
+    config = PPOConfig(actor_hidden=(16, 16), sigma=(0.1,), batch_norm=True, bn_mode=mode, bn_momentum=0.99)
+    actor = make_networks(config, 2)[0].clone(bn_axis_name=None)  # outside shard_map
+    variables = actor.init(k_init, batches[0])
+    params = dict(variables["params"])
+    params["Dense_2"] = jax.tree.map(lambda w: 100.0 * w, params["Dense_2"])  # actions that depend on s
+
+    def settle(stats, batch):
+        return apply_actor(actor, params, stats, batch, train=True)[1], None
+
+    stats, _ = jax.lax.scan(settle, variables["batch_stats"], batches[:-1])
+    obs = batches[-1]
+    (old_mean, old_log_std), _ = apply_actor(actor, params, stats, obs)  # acting
+    action = gaussian_sample(k_act, old_mean, old_log_std)
+    mb = (obs, action, jnp.ones(32), old_mean, old_log_std)
+    _, (_, clip_frac, _, kl) = jax.jit(make_actor_loss(config, actor))(params, stats, mb, jnp.asarray(1.0))
+    return float(clip_frac), float(kl)
+
+
+def test_first_actor_step_ratio_is_one_against_the_acting_batch_norm_policy():
+    """Before any update, r = π_θ(a|s) / π_old(a|s) must be 1 where π_old is the acting policy
+    (moving averages) and π_θ the training-mode one. Plain batch-norm breaks this from the first
+    step on few-goal mini-batches; batch renormalisation keeps it (KL 0, nothing clipped)."""
+    clip_renorm, kl_renorm = _first_step_clip_fraction_and_kl("renorm")
+    clip_batch, kl_batch = _first_step_clip_fraction_and_kl("batch")
+    assert clip_renorm == 0.0 and kl_renorm < 1e-6, (clip_renorm, kl_renorm)
+    assert clip_batch > 0.1 and kl_batch > 0.1, (clip_batch, kl_batch)

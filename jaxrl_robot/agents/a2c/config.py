@@ -6,6 +6,7 @@ import dataclasses
 from dataclasses import dataclass
 
 from envs_mjx.config import ConfigError, check_choice, check_range
+from jaxrl_robot.networks import BN_MODES
 
 __all__ = ["BN_BATCHES", "LR_SCHEDULES", "PUSH_ORDERS", "A2CConfig", "A3CConfig"]
 
@@ -54,6 +55,11 @@ class A2CConfig:
     """Batch-normalise the actor (batch statistics in training, see bn_batch; moving averages when acting)."""
     bn_momentum: float = 0.99
     """Decay of the batch-norm moving averages."""
+    bn_mode: str = "renorm"
+    """Actor batch-norm in training: 'renorm' — batch renormalisation (Ioffe, 2017): outputs equal
+    the acting ones (moving averages) while gradients flow through the batch statistics;
+    'batch' — plain batch-norm, whose trained policy (each few-lane mini-batch normalised by its
+    own statistics) is not the acting one."""
     bn_batch: str = "update"
     """Batch-norm statistics in training: 'lane' (each lane's own buffer of at most N
     consecutive steps, as each thesis worker normalises its local buffer) or 'update' (all
@@ -81,6 +87,7 @@ class A2CConfig:
         check_range("entropy_coef", self.entropy_coef, 0.0)
         check_range("gamma", self.gamma, 0.0, 1.0)
         check_range("bn_momentum", self.bn_momentum, 0.0, 1.0, hi_open=True)
+        check_choice("bn_mode", self.bn_mode, BN_MODES)
         check_choice("bn_batch", self.bn_batch, BN_BATCHES)
         check_range("max_grad_norm", self.max_grad_norm, 0.0)
         check_range("reward_scale", self.reward_scale, 0.0, lo_open=True)

@@ -164,6 +164,7 @@ def make_networks(config: A2CConfig, action_size: int) -> tuple[GaussianActor, C
         learn_std=config.learn_std,
         batch_norm=config.batch_norm,
         bn_momentum=config.bn_momentum,
+        bn_mode=config.bn_mode,
         # A2C's 'update' batch spans every device's lanes.
         bn_axis_name=_LANES if synchronous_update_batch else None,
     )

@@ -56,7 +56,7 @@ from jaxrl_robot.networks import (
 from jaxrl_robot.returns import gae, lambda_returns
 from jaxrl_robot.types import Metrics, Policy, RunningStats, Trainer, Transition
 
-__all__ = ["PPOState", "make_networks", "make_train", "make_trainer"]
+__all__ = ["PPOState", "make_actor_loss", "make_networks", "make_train", "make_trainer"]
 
 _LANES = parallel.LANES
 
@@ -102,6 +102,7 @@ def make_networks(config: PPOConfig, action_size: int) -> tuple[GaussianActor, C
         learn_std=config.learn_std,
         batch_norm=config.batch_norm,
         bn_momentum=config.bn_momentum,
+        bn_mode=config.bn_mode,
         bn_axis_name=_LANES,
     )
     return actor, Critic(hidden=tuple(config.critic_hidden))
@@ -143,6 +144,36 @@ def _schedule_values(tables: dict, progress: jax.Array) -> dict[str, jax.Array]:
 
 def _per_lane_keys(key: jax.Array, lane_ids: jax.Array) -> jax.Array:
     return jax.vmap(jax.random.fold_in, in_axes=(None, 0))(key, lane_ids)
+
+
+def make_actor_loss(config: PPOConfig, actor: GaussianActor) -> Callable:
+    """``loss(params, stats, minibatch, beta) -> (loss, (new_stats, clip_fraction, entropy, kl))``.
+
+    ``minibatch = (obs [B, D], action [B, A], advantage [B], old_mean [B, A], old_log_std [B, A])``
+    where ``old_*`` are π_old's outputs as it acted. π_θ runs in training mode (batch
+    statistics; ``new_stats`` are the advanced moving averages). The ratio
+    ``r = π_θ(a|s) / π_old(a|s)`` enters the clipped objective (Eq. 5.5) or the KL-penalty
+    objective (Eq. 5.3) with ``kl = KL(π_old ‖ π_θ)``, mean over the mini-batch; minus
+    ``entropy_coef`` times the mean entropy.
+    """
+
+    def loss_fn(params: Any, stats: Any, mb: tuple, beta: jax.Array):
+        obs, action, adv, old_mean, old_log_std = mb
+        (mean, log_std), new_stats = apply_actor(actor, params, stats, obs, train=True)
+        log_prob = gaussian_log_prob(mean, log_std, action)
+        old_log_prob = gaussian_log_prob(old_mean, old_log_std, action)
+        kl = gaussian_kl(old_mean, old_log_std, mean, log_std)
+        entropy = jnp.mean(gaussian_entropy(log_std))
+        if config.objective == "clip":
+            loss, clip_frac = clipped_surrogate_loss(log_prob, old_log_prob, adv, config.clip_eps)
+        else:
+            loss = kl_penalty_loss(log_prob, old_log_prob, adv, kl, beta)
+            log_ratio = jnp.clip(log_prob - old_log_prob, -LOG_RATIO_LIMIT, LOG_RATIO_LIMIT)
+            clip_frac = jnp.mean((jnp.abs(jnp.exp(log_ratio) - 1.0) > config.clip_eps) * 1.0)
+        loss = loss - config.entropy_coef * entropy
+        return loss, (new_stats, clip_frac, entropy, jnp.mean(kl))
+
+    return loss_fn
 
 
 def make_trainer(
@@ -242,23 +273,7 @@ def make_trainer(
 
         return jax.tree.map(take, data)
 
-    def actor_loss_fn(params, stats, old_params, mb, beta):
-        obs, action, adv = mb
-        (mean, log_std), new_stats = apply_actor(actor, params, stats, obs, train=True)
-        (old_mean, old_log_std), _ = apply_actor(actor, old_params, stats, obs, train=True)
-        old_mean, old_log_std = jax.lax.stop_gradient((old_mean, old_log_std))
-        log_prob = gaussian_log_prob(mean, log_std, action)
-        old_log_prob = gaussian_log_prob(old_mean, old_log_std, action)
-        kl = gaussian_kl(old_mean, old_log_std, mean, log_std)
-        entropy = jnp.mean(gaussian_entropy(log_std))
-        if config.objective == "clip":
-            loss, clip_frac = clipped_surrogate_loss(log_prob, old_log_prob, adv, config.clip_eps)
-        else:
-            loss = kl_penalty_loss(log_prob, old_log_prob, adv, kl, beta)
-            log_ratio = jnp.clip(log_prob - old_log_prob, -LOG_RATIO_LIMIT, LOG_RATIO_LIMIT)
-            clip_frac = jnp.mean((jnp.abs(jnp.exp(log_ratio) - 1.0) > config.clip_eps) * 1.0)
-        loss = loss - config.entropy_coef * entropy
-        return loss, (new_stats, clip_frac, entropy, jnp.mean(kl))
+    actor_loss_fn = make_actor_loss(config, actor)
 
     def critic_loss_fn(params, mb):
         obs, targets = mb
@@ -296,14 +311,16 @@ def make_trainer(
             var = parallel.pmean(jnp.mean((adv - mu) ** 2))
             adv = (adv - mu) / (jnp.sqrt(var) + 1e-8)
 
-        # m actor updates (Algorithm 8, lines 4-10); θ_old is the policy that collected the data.
-        old_params = state.actor_params
+        # m actor updates (Algorithm 8, lines 4-10); π_old is the policy that collected the data,
+        # exactly as it acted (moving batch-norm statistics, the observation normaliser it saw).
+        behaviour_obs = obs_norm(state.obs_stats, traj.obs)
+        (old_mean, old_log_std), _ = apply_actor(actor, state.actor_params, state.actor_stats, behaviour_obs)
 
         def actor_step(carry, k):
             params, stats, opt = carry
-            mb = minibatch(k, lane_ids, (obs, traj.action, adv))
+            mb = minibatch(k, lane_ids, (obs, traj.action, adv, old_mean, old_log_std))
             grad_fn = jax.value_and_grad(actor_loss_fn, has_aux=True)
-            (loss, (stats, clip_frac, entropy, _)), grads = grad_fn(params, stats, old_params, mb, state.kl_beta)
+            (loss, (stats, clip_frac, entropy, _)), grads = grad_fn(params, stats, mb, state.kl_beta)
             grads = parallel.pmean(grads)
             updates, opt = actor_tx.update(grads, opt, params)
             params = optax.apply_updates(params, updates)
@@ -314,10 +331,9 @@ def make_trainer(
             actor_step, carry, jax.random.split(k_actor, config.actor_updates)
         )
 
-        # D of Eq. 5.4 on all K·N transitions, then β's halve/double rule.
-        flat_obs = obs.reshape((-1, obs_size))
-        (new_mean, new_log_std), _ = apply_actor(actor, actor_params, actor_stats, flat_obs, train=True)
-        (old_mean, old_log_std), _ = apply_actor(actor, old_params, state.actor_stats, flat_obs, train=True)
+        # D of Eq. 5.4 on all K·N transitions: π_old as it acted vs π_θ as it will act; then β's
+        # halve/double rule.
+        (new_mean, new_log_std), _ = apply_actor(actor, actor_params, actor_stats, obs)
         kl = parallel.pmean(jnp.mean(gaussian_kl(old_mean, old_log_std, new_mean, new_log_std)))
         kl_beta = adapt_kl_beta(state.kl_beta, kl, config.kl_target) if config.objective == "kl" else state.kl_beta
 
