@@ -28,7 +28,9 @@ The CLI then calls :func:`run` with a :class:`RunSpec`. :func:`run`:
 5. evaluates the final policy — reaching envs: success over ``eval_episodes`` test episodes
    from fresh random starts and goals (a key stream apart from training) and the mean extra
    distance; tracking envs: the test episode from ``t = 0`` and the per-axis error sums —
-   prints a table, writes ``eval.json`` and draws the figures (``*.png``).
+   prints a table, writes ``eval.json`` and draws the figures (``*.png``). The test-episode
+   program is compiled in a background thread while training runs, so evaluation at the end
+   costs only its run time.
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ import os
 import sys
 import time
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
 
 import jax
@@ -160,12 +163,14 @@ def evaluate(
     episodes: int,
     run_dir: str | None = None,
     episode_length: int = 0,
+    episodes_fn: Callable[[jax.Array], dict[str, Any]] | None = None,
 ) -> dict[str, Any]:
     """Evaluate a deterministic policy; draws the tracking figures into ``run_dir`` if given.
 
     Tracking envs: ``envs_mjx.tracking.test_episode`` from ``t = 0`` → per-axis sums of
     |error| (plus means per step and the step count). Other envs: ``episodes`` test episodes
-    → success rate, mean extra distance, mean return (whichever metrics the env has).
+    → success rate, mean extra distance, mean return (whichever metrics the env has);
+    ``episodes_fn(key)``, if given, is an already compiled ``run_test_episodes`` of ``policy``.
     """
     if is_tracking_env(env):
         from envs_mjx import tracking
@@ -180,9 +185,40 @@ def evaluate(
             ok = np.isfinite(real[:, 0])
             plot_tracking(ref[ok], real[ok], result["abs_error"][: result["steps"]], run_dir, axes)
         return {"kind": "tracking", **summary}
-    run_eps = jax.jit(lambda k: run_test_episodes(k, env, policy, episodes, episode_length or None))
-    summary = summarize_episodes(jax.device_get(run_eps(key)))
+    if episodes_fn is None:
+        episodes_fn = jax.jit(lambda k: run_test_episodes(k, env, policy, episodes, episode_length or None))
+    summary = summarize_episodes(jax.device_get(episodes_fn(key)))
     return {"kind": "episodes", **summary}
+
+
+def compile_evaluation_async(
+    spec: RunSpec, key: jax.Array, state: Any
+) -> Future[Callable[[jax.Array, Any], Any]] | None:
+    """Compile ``(key, state) -> run_test_episodes(...)`` of ``spec.trainer.policy(state)`` in a thread.
+
+    Returns a future of the compiled function, or None for tracking envs (their test episode
+    is compiled when it runs). The thread overlaps XLA compilation with training.
+    """
+    if is_tracking_env(spec.env):
+        return None
+    policy_of, env, n, limit = spec.trainer.policy, spec.env, spec.eval_episodes, spec.episode_length or None
+    fn = jax.jit(lambda k, s: run_test_episodes(k, env, policy_of(s), n, limit))
+    executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="compile-eval")
+    future = executor.submit(lambda: fn.lower(key, state).compile())
+    executor.shutdown(wait=False)
+    return future
+
+
+def _compiled_episodes(future: Future | None, state: Any) -> Callable[[jax.Array], Any] | None:
+    """The background-compiled evaluation bound to ``state``; None if it failed (then compiled in line)."""
+    if future is None:
+        return None
+    try:
+        compiled = future.result()
+    except Exception as e:  # compilation is retried in line by ``evaluate``
+        print(f"background compilation of the evaluation failed ({type(e).__name__}: {e}); compiling now", flush=True)
+        return None
+    return lambda k: compiled(k, state)
 
 
 def _print_table(title: str, rows: dict[str, Any]) -> None:
@@ -271,6 +307,9 @@ def run(spec: RunSpec) -> dict[str, Any]:
         stop_chunk = min(stop_chunk, max(chunk + 1, math.ceil(spec.stop_after_steps / steps_per)))
     show = use_progress_bar() if spec.progress is None else spec.progress
     bar = _Progress(show, total_steps, chunk * steps_per)
+    eval_key = jax.random.fold_in(jax.random.PRNGKey(spec.seed), EVAL_KEY_OFFSET)
+    will_evaluate = stop_chunk >= trainer.num_updates and chunk < stop_chunk
+    eval_future = compile_evaluation_async(spec, eval_key, state) if will_evaluate else None
 
     def record(c: int, wall: float) -> dict[str, Any]:
         return {"chunk": c, "env_steps": c * steps_per, "wall_s": wall}
@@ -320,10 +359,15 @@ def run(spec: RunSpec) -> dict[str, Any]:
         print(f"stopped at {result['env_steps']} env steps; continue with --resume {run_dir}", flush=True)
         ckpt.close()
         return result
-    eval_key = jax.random.fold_in(jax.random.PRNGKey(spec.seed), EVAL_KEY_OFFSET)
     t_eval = time.perf_counter()
     summary = evaluate(
-        eval_key, spec.env, trainer.policy(state), spec.eval_episodes, run_dir, spec.episode_length
+        eval_key,
+        spec.env,
+        trainer.policy(state),
+        spec.eval_episodes,
+        run_dir,
+        spec.episode_length,
+        episodes_fn=_compiled_episodes(eval_future, state),
     )
     result["eval_s"] = time.perf_counter() - t_eval
     result["wall_s"] = wall_before + time.perf_counter() - t0
