@@ -12,11 +12,16 @@ cost of one operation:
 
 * ``add``: store one batch (new priorities = the maximum, as in PER);
 * ``sample``: draw one mini-batch with its data (and, for PER, probabilities and IS weights);
-* ``update``: write back the mini-batch's priorities (β annealed);
-* ``sample+update``: one PER learning step's replay work.
+* ``update``: write back the priorities of a fixed batch of slots (β annealed);
+* ``sample+update``: the sum of the two columns before, each timed in its own scan;
+* ``step``: one learning step's replay work fused in one scan body, as DDPG runs it: sample,
+  stand-in TD errors computed from the sampled data (and IS weights), priorities written back
+  (uniform: the same without the write-back).
 
-Peers in the same run: our uniform ring buffer, our prioritised replay with a binary sum-tree
-(branching 2, Fig. 3.2), with branching 16 (the default) and 1024 (two levels for 10^6), and flashbax's
+Ratios: ``PER sample+update / uniform sample`` (the issue's goal, unfused) and ``PER step /
+uniform step`` (fused, like for like).
+Peers in the same run: our uniform ring buffer, our prioritised replay with the sum-tree branching
+factors of ``--branchings`` (2 = the binary tree of Fig. 3.2; 16 = the default), and flashbax's
 ``make_prioritised_item_buffer`` (an optional dependency: ``pip install -e .[bench]``).
 Goals (issue 5): prioritised sample + update ≤ 1.5 × uniform sample; ≥ 2 × faster than flashbax.
 
@@ -24,7 +29,8 @@ With ``--ddpg``: DDPG + HER (future, k = 4, PER) on arm7, one cycle per timed ca
 16 lanes × 100 steps with 40 updates of 128, and a many-lane cycle; env steps/s counts every
 lane step of the cycle, updates/s the gradient updates of the same cycle.
 
-Results: ``benchmarks/results/<device>-replay_throughput.json`` and ``.md``.
+Results: ``benchmarks/results/<device>-replay_throughput.json`` and ``.md`` (``<device>``:
+``cpu-<n>core`` or ``gpu-<device kind>``, e.g. ``gpu-nvidia_h200``); ``--out DIR`` writes them elsewhere.
 """
 
 from __future__ import annotations
@@ -34,6 +40,7 @@ import json
 import os
 import platform
 import statistics
+import sys
 import time
 from collections.abc import Callable
 from typing import Any
@@ -48,9 +55,12 @@ RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 
 
 def device_label() -> str:
+    """``cpu-<n>core`` on the CPU, else ``<backend>-<device kind>`` (``gpu-nvidia_h200``)."""
     d = jax.devices()[0]
-    kind = d.device_kind if d.platform != "cpu" else f"cpu-{os.cpu_count()}core"
-    return f"{d.platform}-{kind}".replace(" ", "_").lower()
+    if d.platform == "cpu":
+        return f"cpu-{os.cpu_count()}core"
+    backend = "gpu" if d.platform in ("gpu", "cuda", "rocm") else d.platform
+    return f"{backend}-{d.device_kind}".replace(" ", "_").lower()
 
 
 def transitions(key: jax.Array, n: int) -> Transition:
@@ -96,8 +106,25 @@ def _checksum(x: Any) -> jax.Array:
     return sum(jnp.sum(leaf.astype(jnp.float32)) for leaf in jax.tree.leaves(x))
 
 
+def fake_td(experience: Transition, weights: jax.Array | None = None) -> jax.Array:
+    """``[B]`` stand-in TD errors computed from the sampled data (and IS weights), so nothing is skipped."""
+    td = experience.reward + 0.1 * experience.obs[:, 0] - 0.1 * experience.next_obs[:, 0] + experience.action[:, 0]
+    return td if weights is None else td * weights
+
+
+def _run_ops(ops: dict[str, Callable], carry: Any, inner: int, repeats: int) -> dict[str, Any]:
+    """Time each ``op(carry, i) -> carry`` in its own jitted scan; adds the unfused ``sample+update`` sum."""
+    out: dict[str, Any] = {}
+    for name, op in ops.items():
+        compile_s, sec, carry = _time(_scan(op, inner), carry, repeats)
+        out[name] = {"us": sec / inner * 1e6, "compile_s": compile_s}
+    if "update" in out:
+        out["sample+update"] = {"us": out["sample"]["us"] + out["update"]["us"]}
+    return out
+
+
 def bench_ours(kind: str, capacity: int, batch: int, fill: int, inner: int, repeats: int) -> dict[str, Any]:
-    """Per-operation seconds of our uniform ('uniform') or prioritised ('per2', 'per16') buffer."""
+    """Per-operation µs of our uniform ('uniform') or prioritised ('per<branching>', e.g. 'per16') buffer."""
     if kind == "uniform":
         buf = make_uniform_replay(capacity, batch)
     else:
@@ -110,7 +137,6 @@ def bench_ours(kind: str, capacity: int, batch: int, fill: int, inner: int, repe
             state, jnp.arange(fill), jax.random.exponential(jax.random.PRNGKey(2), (fill,))
         )
     key = jax.random.PRNGKey(3)
-    acc = jnp.zeros(())
     ops: dict[str, Callable] = {"add": lambda c, i: (buf.add(c[0], items), c[1])}
 
     def sample(c, i):
@@ -118,26 +144,27 @@ def bench_ours(kind: str, capacity: int, batch: int, fill: int, inner: int, repe
         return c[0], c[1] + _checksum(s)
 
     ops["sample"] = sample
-    if kind != "uniform":
+    if kind == "uniform":
+
+        def step(c, i):
+            s = buf.sample(jax.random.fold_in(key, i), c[0])
+            return c[0], c[1] + jnp.sum(fake_td(s.experience))
+
+    else:
         td = jax.random.normal(jax.random.PRNGKey(4), (batch,))
         idx = jax.random.randint(jax.random.PRNGKey(5), (batch,), 0, fill)
 
         def update(c, i):
             return buf.update_priorities(c[0], idx, td + i), c[1]
 
-        def sample_update(c, i):
+        def step(c, i):
             s = buf.sample(jax.random.fold_in(key, i), c[0])
-            err = s.experience.reward * s.weights  # stands in for the TD error computed from the batch
-            return buf.update_priorities(c[0], s.indices, err + i), c[1] + _checksum(s.experience)
+            err = fake_td(s.experience, s.weights)
+            return buf.update_priorities(c[0], s.indices, err), c[1] + jnp.sum(err)
 
         ops["update"] = update
-        ops["sample+update"] = sample_update
-    out: dict[str, Any] = {}
-    carry = (state, acc)
-    for name, op in ops.items():
-        compile_s, sec, carry = _time(_scan(op, inner), carry, repeats)
-        out[name] = {"us": sec / inner * 1e6, "compile_s": compile_s}
-    return out
+    ops["step"] = step
+    return _run_ops(ops, (state, jnp.zeros(())), inner, repeats)
 
 
 def bench_flashbax(capacity: int, batch: int, fill: int, inner: int, repeats: int) -> dict[str, Any]:
@@ -169,19 +196,13 @@ def bench_flashbax(capacity: int, batch: int, fill: int, inner: int, repeats: in
     def update(c, i):
         return buf.set_priorities(c[0], idx, jnp.abs(td + i) + 1e-6), c[1]
 
-    def sample_update(c, i):
+    def step(c, i):  # flashbax returns probabilities, not IS weights: weight them by 1 / P
         s = buf.sample(c[0], jax.random.fold_in(key, i))
-        err = s.experience.reward / (s.probabilities + 1e-6)
-        return buf.set_priorities(c[0], s.indices, jnp.abs(err + i) + 1e-6), c[1] + _checksum(s.experience)
+        err = fake_td(s.experience, 1.0 / (s.probabilities + 1e-6))
+        return buf.set_priorities(c[0], s.indices, jnp.abs(err) + 1e-6), c[1] + jnp.sum(err)
 
-    ops = {"add": lambda c, i: (buf.add(c[0], items), c[1]), "sample": sample, "update": update,
-           "sample+update": sample_update}  # fmt: skip
-    out: dict[str, Any] = {"fill_s": fill_s}
-    carry = (state, jnp.zeros(()))
-    for name, op in ops.items():
-        compile_s, sec, carry = _time(_scan(op, inner), carry, repeats)
-        out[name] = {"us": sec / inner * 1e6, "compile_s": compile_s}
-    return out
+    ops = {"add": lambda c, i: (buf.add(c[0], items), c[1]), "sample": sample, "update": update, "step": step}
+    return {"fill_s": fill_s, **_run_ops(ops, (state, jnp.zeros(())), inner, repeats)}
 
 
 def bench_ddpg(lanes: int, updates: int, batch: int, mode: str, repeats: int) -> dict[str, Any]:
@@ -210,18 +231,41 @@ def bench_ddpg(lanes: int, updates: int, batch: int, mode: str, repeats: int) ->
             "transitions_per_cycle_max": steps * 5}  # fmt: skip
 
 
+COLUMNS = ("add", "sample", "update", "sample+update", "step")
+
+
+def ratios_for(rows: dict[str, Any]) -> dict[str, float]:
+    """The goal ratios of one batch size: PER vs uniform (unfused and fused) and flashbax vs PER."""
+    uni = rows["uniform"]
+    fbx = rows.get("flashbax", {})
+    out = {}
+    for kind, ops in rows.items():
+        if not kind.startswith("per") or "error" in ops:
+            continue
+        out[f"{kind} sample+update / uniform sample"] = ops["sample+update"]["us"] / uni["sample"]["us"]
+        out[f"{kind} step / uniform step"] = ops["step"]["us"] / uni["step"]["us"]
+        if "step" in fbx:
+            out[f"flashbax / {kind} (sample+update)"] = fbx["sample+update"]["us"] / ops["sample+update"]["us"]
+            out[f"flashbax / {kind} (step)"] = fbx["step"]["us"] / ops["step"]["us"]
+            out[f"flashbax / {kind} (add)"] = fbx["add"]["us"] / ops["add"]["us"]
+    return out
+
+
 def to_markdown(result: dict[str, Any]) -> str:
     lines = [f"# Replay throughput on {result['device']} ({result['device_kind']})", "",
              f"capacity {result['capacity']:,}, filled {result['fill']:,}; µs per operation (median of "
-             f"{result['repeats']} × {result['inner']} in one jitted scan); jax {result['jax']}", ""]  # fmt: skip
+             f"{result['repeats']} × {result['inner']} in one jitted scan); jax {result['jax']}.", "",
+             "`sample+update` = the `sample` and `update` columns added (each timed in its own scan); "
+             "`step` = sample → stand-in TD errors → priority write-back fused in one scan body, as DDPG "
+             "runs it (uniform: the same without the write-back).", ""]  # fmt: skip
     for batch, rows in result["ops"].items():
-        lines += [f"## batch {batch}", "", "| buffer | add | sample | update | sample+update |"]
-        lines += ["|---|---|---|---|---|"]
+        header = "| buffer | " + " | ".join(COLUMNS) + " |"
+        lines += [f"## batch {batch}", "", header, "|---" * (len(COLUMNS) + 1) + "|"]
         for impl, ops in rows.items():
             if "error" in ops:
-                lines.append(f"| {impl} | {ops['error']} | | | |")
+                lines.append(f"| {impl} | {ops['error']} |" + " |" * (len(COLUMNS) - 1))
                 continue
-            cells = [f"{ops[o]['us']:.1f}" if o in ops else "—" for o in ("add", "sample", "update", "sample+update")]
+            cells = [f"{ops[o]['us']:.1f}" if o in ops else "—" for o in COLUMNS]
             lines.append(f"| {impl} | " + " | ".join(cells) + " |")
         ratios = result["ratios"].get(batch, {})
         lines += ["", *(f"- {k}: **{v:.2f}**" for k, v in ratios.items()), ""]
@@ -235,6 +279,10 @@ def to_markdown(result: dict[str, Any]) -> str:
                 continue
             lines.append(f"| {r['mode']} | {r['lanes']} | {r['updates_per_cycle']} × {r['batch']} | {r['cycle_s']:.3f} "
                          f"| {r['env_steps_per_s']:,.0f} | {r['updates_per_s']:,.0f} | {r['compile_s']:.1f} |")
+        lines.append("")
+    lines += ["## Run", "", f"- Command: `{result['command']}`",
+              f"- Load average (1 min) at start / end: {result['load_start']} / {result.get('load_end', '—')} "
+              f"on {os.cpu_count()} CPU cores (other jobs on a shared host make CPU figures noisy)."]  # fmt: skip
     return "\n".join(lines) + "\n"
 
 
@@ -249,7 +297,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--ddpg", action=argparse.BooleanOptionalAction, default=True)
     p.add_argument("--ddpg-lanes", type=int, nargs="+", default=None)
     p.add_argument("--mode", default=None, help="arm7 physics of the DDPG cycle (default: pd on GPU, else kinematic)")
-    p.add_argument("--branchings", type=int, nargs="+", default=[2, 16, 1024], help="sum-tree branching factors")
+    p.add_argument("--branchings", type=int, nargs="+", default=[2, 8, 16, 32], help="sum-tree branching factors")
     p.add_argument("--out", default=RESULTS)
     args = p.parse_args(argv)
     on_gpu = jax.default_backend() != "cpu"
@@ -257,13 +305,16 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "device": device_label(), "device_kind": jax.devices()[0].device_kind, "jax": jax.__version__,
         "host": platform.node(), "capacity": args.capacity, "fill": args.fill, "inner": args.inner,
         "repeats": args.repeats, "ops": {}, "ratios": {},
+        "command": "python -m benchmarks.replay_throughput " + " ".join(sys.argv[1:] if argv is None else argv),
+        "load_start": round(os.getloadavg()[0], 2),
     }  # fmt: skip
     for batch in args.batches if args.replay else []:
         rows: dict[str, Any] = {}
         kinds = ["uniform", *(f"per{b}" for b in args.branchings)]
         for kind in kinds:
             rows[kind] = bench_ours(kind, args.capacity, batch, args.fill, args.inner, args.repeats)
-            print(batch, kind, {k: round(v["us"], 1) for k, v in rows[kind].items()}, flush=True)
+            print(batch, kind, {k: round(v["us"], 1) for k, v in rows[kind].items()}, f"load {os.getloadavg()[0]:.1f}",
+                  flush=True)
         try:
             rows["flashbax"] = bench_flashbax(args.capacity, batch, args.fill, args.inner, args.repeats)
             print(batch, "flashbax", {k: round(v["us"], 1) for k, v in rows["flashbax"].items() if k != "fill_s"},
@@ -272,16 +323,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             rows["flashbax"] = {"error": f"{type(e).__name__}: {e}"[:200]}
             print(batch, "flashbax failed:", rows["flashbax"]["error"], flush=True)
         result["ops"][str(batch)] = rows
-        uni = rows["uniform"]["sample"]["us"]
-        ratios = {}
-        for kind in kinds[1:]:
-            ratios[f"{kind} (sample+update) / uniform sample"] = rows[kind]["sample+update"]["us"] / uni
-            if "sample+update" in rows["flashbax"]:
-                ratios[f"flashbax / {kind} (sample+update)"] = (
-                    rows["flashbax"]["sample+update"]["us"] / rows[kind]["sample+update"]["us"]
-                )
-                ratios[f"flashbax / {kind} (add)"] = rows["flashbax"]["add"]["us"] / rows[kind]["add"]["us"]
-        result["ratios"][str(batch)] = ratios
+        result["ratios"][str(batch)] = ratios_for(rows)
         save(result, args.out)  # partial results survive a time limit
     if args.ddpg:
         mode = args.mode or ("pd" if on_gpu else "kinematic")
@@ -296,6 +338,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             result["ddpg"].append(r)
             print("ddpg", r, flush=True)
             save(result, args.out)
+    result["load_end"] = round(os.getloadavg()[0], 2)
     md = save(result, args.out)
     print(md)
     return result

@@ -9,6 +9,12 @@ from scipy import stats
 from jaxrl_robot.replay import make_prioritized_replay, sum_tree
 
 
+def _jit(replay):
+    """The same buffer with add / sample / update_priorities compiled (one compile each, not one per op)."""
+    return replay._replace(add=jax.jit(replay.add), sample=jax.jit(replay.sample),
+                           update_priorities=jax.jit(replay.update_priorities))  # fmt: skip
+
+
 def _item():
     return {"x": jnp.zeros((2,)), "i": jnp.zeros((), jnp.int32)}
 
@@ -18,9 +24,11 @@ def _items(lo, hi):
     return {"x": jnp.stack([i, -i], -1).astype(jnp.float32), "i": i}
 
 
-def test_sampling_frequencies_follow_priority_power_alpha():
+@pytest.mark.parametrize("branching", [2, 16])  # depth 3 and depth 1
+def test_sampling_frequencies_follow_priority_power_alpha(branching):
     alpha = 0.6
-    replay = make_prioritized_replay(capacity=8, batch_size=16, alpha=alpha, beta0=0.4, priority_eps=1e-9)
+    replay = _jit(make_prioritized_replay(capacity=8, batch_size=16, alpha=alpha, beta0=0.4, priority_eps=1e-9,
+                                          branching=branching))
     state = replay.add(replay.init(_item()), _items(0, 6))  # slots 6, 7 stay unwritten
     td = jnp.array([0.1, 1.0, 2.0, 0.0, 5.0, 0.5])
     state = replay.update_priorities(state, jnp.arange(6), td)
@@ -40,8 +48,8 @@ def test_sampling_frequencies_follow_priority_power_alpha():
 
 
 def test_importance_weights_and_beta_annealing_by_hand():
-    replay = make_prioritized_replay(capacity=4, batch_size=4, alpha=0.5, beta0=0.4, beta_increment=0.1,
-                                     priority_eps=1e-12, branching=2)
+    replay = _jit(make_prioritized_replay(capacity=4, batch_size=4, alpha=0.5, beta0=0.4, beta_increment=0.1,
+                                          priority_eps=1e-12, branching=2))
     state = replay.add(replay.init(_item()), _items(0, 4))
     state = replay.update_priorities(state, jnp.arange(4), jnp.array([1.0, 4.0, 9.0, 16.0]))
     assert float(state.beta) == pytest.approx(0.5)
@@ -67,7 +75,7 @@ def test_importance_weights_and_beta_annealing_by_hand():
 
 
 def test_new_items_enter_with_max_priority_or_given_priority():
-    replay = make_prioritized_replay(capacity=6, batch_size=2, alpha=0.5, priority_eps=1e-12, branching=2)
+    replay = _jit(make_prioritized_replay(capacity=6, batch_size=2, alpha=0.5, priority_eps=1e-12, branching=2))
     state = replay.add(replay.init(_item()), _items(0, 2))
     np.testing.assert_allclose(sum_tree.get(state.tree, jnp.arange(2)), [1.0, 1.0])  # initial max priority 1
     state = replay.update_priorities(state, jnp.array([0, 1]), jnp.array([-9.0, 0.25]))
@@ -91,6 +99,8 @@ def test_invalid_settings_name_the_field():
         make_prioritized_replay(10, 4, alpha=1.5)
     with pytest.raises(ValueError, match="beta0=-0.1"):
         make_prioritized_replay(10, 4, beta0=-0.1)
+    with pytest.raises(ValueError, match=r"branching=1 is out of range; allowed an integer >= 2"):
+        make_prioritized_replay(10, 4, branching=1)
     replay = make_prioritized_replay(4, 2)
     with pytest.raises(ValueError, match="cannot add 5 items at once to a buffer of capacity 4"):
         replay.add(replay.init(_item()), _items(0, 5))

@@ -15,17 +15,25 @@ BATCH = 12
 
 
 def _check_consistent(tree):
-    """Every internal node equals the sum of its children; the root equals the leaf sum."""
+    """Every block of running sums is the left-to-right float32 sum of its children; the root is the leaf sum."""
+    levels = tree.levels  # node sums, root first
     for level in range(tree.depth, 0, -1):
-        children = np.asarray(tree.levels[level], np.float64).reshape(-1, tree.branching).sum(-1)
-        np.testing.assert_allclose(np.asarray(tree.levels[level - 1]), children, rtol=1e-5, atol=1e-6)
+        children = np.asarray(levels[level], np.float32).reshape(-1, tree.branching)
+        running = np.asarray(tree.prefix[level - 1]).reshape(-1, tree.branching)
+        if tree.branching <= sum_tree.UNROLL_MAX:  # sequential adds: exactly numpy's float32 cumsum
+            np.testing.assert_array_equal(running, np.cumsum(children, axis=-1, dtype=np.float32))
+        else:
+            np.testing.assert_allclose(running, np.cumsum(children.astype(np.float64), axis=-1), rtol=1e-5, atol=1e-6)
+        assert np.all(np.diff(running, axis=-1) >= 0)  # non-decreasing along every block
+        sums = np.asarray(levels[level], np.float64).reshape(-1, tree.branching).sum(-1)
+        np.testing.assert_allclose(np.asarray(levels[level - 1]), sums, rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(float(sum_tree.total(tree)), np.asarray(tree.leaves, np.float64).sum(), rtol=1e-5)
 
 
 @st.composite
 def tree_updates(draw):
     capacity = draw(st.sampled_from([1, 7, 70]))
-    branching = draw(st.sampled_from([2, 3, 16]))
+    branching = draw(st.sampled_from([2, 3, 16, 64]))  # 64: the cumsum + cummax blocks
     batches = []
     for _ in range(draw(st.integers(1, 4))):
         n = draw(st.integers(1, BATCH))
@@ -57,23 +65,23 @@ def test_root_is_sum_of_leaves_after_batched_updates_with_duplicates(case):
 
 def test_last_occurrence_wins_and_mask_ignores_rows():
     tree = sum_tree.init(8, 2)
-    tree = sum_tree.set(tree, jnp.array([5, 2, 5, 5, 2]), jnp.array([1.0, 2.0, 3.0, 4.0, 7.0]))
+    tree = _set(tree, jnp.array([5, 2, 5, 5, 2]), jnp.array([1.0, 2.0, 3.0, 4.0, 7.0]))
     np.testing.assert_array_equal(np.asarray(tree.leaves), [0, 0, 7, 0, 0, 4, 0, 0])
-    tree = sum_tree.set(tree, jnp.array([1, 2]), jnp.array([9.0, 1.0]), mask=jnp.array([False, True]))
+    tree = _set(tree, jnp.array([1, 2]), jnp.array([9.0, 1.0]), mask=jnp.array([False, True]))
     np.testing.assert_array_equal(np.asarray(tree.leaves), [0, 0, 1, 0, 0, 4, 0, 0])
     assert float(sum_tree.total(tree)) == 5.0
     # negative priorities are stored as zero
-    tree = sum_tree.set(tree, jnp.array([5]), jnp.array([-3.0]))
+    tree = _set(tree, jnp.array([5]), jnp.array([-3.0]))
     assert float(sum_tree.total(tree)) == 1.0
 
 
 def test_find_intervals_follow_prefix_sums():
-    tree = sum_tree.set(sum_tree.init(6, 2), jnp.arange(6), jnp.array([1.0, 0.0, 2.0, 0.0, 0.0, 3.0]))
+    tree = _set(sum_tree.init(6, 2), jnp.arange(6), jnp.array([1.0, 0.0, 2.0, 0.0, 0.0, 3.0]))
     queries = jnp.array([0.0, 0.5, 0.999, 1.0, 2.999, 3.0, 5.999])
-    np.testing.assert_array_equal(np.asarray(sum_tree.find(tree, queries)), [0, 0, 0, 2, 2, 5, 5])
+    np.testing.assert_array_equal(np.asarray(_find(tree, queries)), [0, 0, 0, 2, 2, 5, 5])
 
 
-@pytest.mark.parametrize("branching", [2, 16])
+@pytest.mark.parametrize("branching", [2, 16, 64])
 def test_zero_and_unwritten_slots_never_sampled(branching):
     capacity = 1000
     tree = sum_tree.init(capacity, branching)
@@ -107,9 +115,9 @@ def test_no_drift_after_many_random_updates():
 
     tree = jax.jit(lambda t: jax.lax.fori_loop(0, 3000, body, t))(tree)
     _check_consistent(tree)
-    rebuilt = sum_tree.rebuild(tree)
-    for a, b in zip(rebuilt.levels, tree.levels, strict=True):
-        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6)
+    rebuilt = jax.jit(sum_tree.rebuild)(tree)
+    for a, b in zip(rebuilt.prefix, tree.prefix, strict=True):  # the history leaves no trace: bit-identical
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
 def test_bad_sizes_raise():
@@ -117,3 +125,32 @@ def test_bad_sizes_raise():
         sum_tree.init(0)
     with pytest.raises(ValueError, match="branching=1"):
         sum_tree.init(4, 1)
+
+
+def test_repeats_resolved_alike_by_pairwise_compare_and_by_sort():
+    rng = np.random.default_rng(0)
+    for n in (7, sum_tree.PAIRWISE_MAX, sum_tree.PAIRWISE_MAX + 300):  # the last one takes the sort path
+        idx = rng.integers(0, n // 3 + 1, n)
+        expected = np.array([i not in idx[k + 1 :] for k, i in enumerate(idx)])
+        np.testing.assert_array_equal(np.asarray(sum_tree.last_occurrence_mask(jnp.asarray(idx))), expected)
+
+
+def test_unique_indices_write_and_vmapped_trees_match_single_trees():
+    # the ring buffer's fresh slots: distinct, some rows masked out
+    set_unique = jax.jit(lambda t, i, v, m: sum_tree.set(t, i, v, m, unique_indices=True))
+    mask = jnp.array([True, True, False])
+    tree = set_unique(sum_tree.init(10, 3), jnp.array([4, 9, 4]), jnp.array([2.0, 3.0, 7.0]), mask)
+    np.testing.assert_array_equal(np.asarray(tree.leaves), [0, 0, 0, 0, 2, 0, 0, 0, 0, 3])
+    _check_consistent(tree)
+    # vmapped over a stack of trees: set and find agree with the trees one by one
+    idx = jnp.array([[0, 5, 5, 9], [3, 3, 1, 0]])
+    vals = jnp.array([[1.0, 2.0, 4.0, 0.5], [6.0, 1.0, 2.0, 0.0]])
+    stack = jax.tree.map(lambda x: jnp.stack([x, x]), sum_tree.init(10, 3))
+    stack = jax.jit(jax.vmap(sum_tree.set))(stack, idx, vals)
+    queries = jnp.array([[0.0, 1.2, 4.9, 5.4], [0.5, 1.5, 2.5, 2.99]])
+    found = jax.jit(jax.vmap(sum_tree.find))(stack, queries)
+    for t in range(2):
+        single = _set(sum_tree.init(10, 3), idx[t], vals[t])
+        np.testing.assert_array_equal(np.asarray(stack.leaf_values[t]), np.asarray(single.leaf_values))
+        np.testing.assert_array_equal(np.asarray(found[t]), np.asarray(_find(single, queries[t])))
+    np.testing.assert_array_equal(np.asarray(found), [[0, 5, 5, 9], [1, 1, 3, 3]])
