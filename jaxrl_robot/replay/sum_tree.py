@@ -32,12 +32,13 @@ kernels XLA launches and the elements each touches, not by the arithmetic of a d
 Depth against width: a level costs one reduction kernel and ``m · b`` compares to sample,
 and one ``[B, b]`` row to update (built by an unrolled add chain that XLA re-evaluates per
 element, so ``O(b²)`` adds per row).  Measured at capacity 10^6 on the shared 2-core CPU
-(``python -m benchmarks.replay_throughput``; figures in ``benchmarks/results``), ``b = 16``
-(depth 5, the default) and ``b = 8`` (depth 7) were the two cheapest for sample + update,
-within run-to-run noise of each other; ``b = 2`` (20 levels) pays a kernel per level and
-``b >= 32`` pays for its rows.  On a GPU, where a kernel launch costs more than these few
-thousand compares, fewer and wider levels may win; the benchmark prints the branchings
-side by side so the default can follow the measurement.
+(``benchmarks/results/cpu-2core-replay_throughput.md``): ``b = 16`` samples fastest and
+``b = 8`` gives the cheapest fused sample → update step (its rows are 4 × cheaper), by
+about 1.3 ×; ``b = 2`` (20 levels) pays a kernel per level and ``b >= 32`` pays for its
+rows.  ``b = 16`` stays the default because on a GPU, where a kernel launch costs more than
+these few thousand compares, the two extra levels of ``b = 8`` add launches to both sample
+and update; ``python -m benchmarks.replay_throughput`` prints the branchings side by side
+so the default can follow the GPU measurement.
 
 All functions are pure, jittable and vmappable; nothing is jitted here.
 
