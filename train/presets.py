@@ -119,7 +119,9 @@ def ppo_preset(name: str, env_name: str, episode_length: int, action_size: int) 
             # γ = 0.99 corrects it (5.5 / 2.2 / 0.59 after 1 M, seed 0; 4.3 / 5.0 / 1.2 seed 1;
             # benchmarks/results/cpu-2core-ppo_unicycle.md). The adaptive-KL objective (Eq. 5.3-5.4)
             # steadied the seeds: y and θ below the thesis's in all four runs (2 seeds × 2 references),
-            # the clipped objective in five of eight figures.
+            # the clipped objective in five of eight figures. Longer runs break down: at 2 M steps
+            # β halves towards 0 while KL stays under target and cannot double back in time, then KL
+            # reaches 3.5 and the policy collapses (sine 39 / 30 / 2.8); adapt_kl_beta has no floor.
             tuned.update(gamma=0.99, objective="kl")
         base = PPOConfig(
             actor_lr=1e-4, critic_lr=5e-4, clip_eps=0.2, gamma=0.9, gae_lambda=0.95, sigma=sigma,
