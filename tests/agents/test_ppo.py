@@ -75,6 +75,10 @@ def test_beta_halves_and_doubles():
     assert float(adapt_kl_beta(beta, jnp.asarray(0.01), target)) == 1.0
     assert float(adapt_kl_beta(beta, jnp.asarray(0.015), target)) == 1.0  # the bounds themselves keep β
     assert float(adapt_kl_beta(beta, jnp.asarray(0.01 / 1.5), target)) == 1.0
+    # bounded: halving stops at the floor, doubling at the ceiling
+    assert float(adapt_kl_beta(jnp.asarray(0.0015), jnp.asarray(0.0), target, 1e-3, 8.0)) == np.float32(1e-3)
+    assert float(adapt_kl_beta(jnp.asarray(6.0), jnp.asarray(1.0), target, 1e-3, 8.0)) == 8.0
+    assert float(adapt_kl_beta(jnp.asarray(3.0), jnp.asarray(1.0), target, 1e-3, 8.0)) == 6.0
 
 
 def test_value_loss_hand_computed():

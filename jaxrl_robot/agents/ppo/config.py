@@ -48,6 +48,10 @@ class PPOConfig:
     """D_thre of the adaptive KL penalty: β halves below D_thre/1.5 and doubles above 1.5 D_thre."""
     kl_beta: float = 1.0
     """Initial KL penalty coefficient β."""
+    kl_beta_min: float = 1e-3
+    """Floor on the adaptive β (the halve/double rule never takes it below this)."""
+    kl_beta_max: float = 1e3
+    """Ceiling on the adaptive β."""
     gamma: float = 0.9
     """Discount factor γ."""
     gae_lambda: float = 0.95
@@ -108,6 +112,8 @@ class PPOConfig:
         check_range("clip_eps", self.clip_eps, 0.0, 1.0, lo_open=True, hi_open=True)
         check_range("kl_target", self.kl_target, 0.0, lo_open=True)
         check_range("kl_beta", self.kl_beta, 0.0, lo_open=True)
+        check_range("kl_beta_min", self.kl_beta_min, 0.0)
+        check_range("kl_beta_max", self.kl_beta_max, self.kl_beta_min, lo_open=True)
         check_range("gamma", self.gamma, 0.0, 1.0)
         check_range("gae_lambda", self.gae_lambda, 0.0, 1.0)
         check_range("bn_momentum", self.bn_momentum, 0.0, 1.0, hi_open=True)

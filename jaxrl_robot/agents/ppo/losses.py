@@ -62,19 +62,25 @@ def kl_penalty_loss(
     return -jnp.mean(objective)
 
 
-def adapt_kl_beta(beta: jax.Array, kl: jax.Array, kl_target: float) -> jax.Array:
-    """The halve/double rule after Eq. 5.4.
+def adapt_kl_beta(
+    beta: jax.Array, kl: jax.Array, kl_target: float, beta_min: float = 0.0, beta_max: float = float("inf")
+) -> jax.Array:
+    """The halve/double rule after Eq. 5.4, kept within ``[beta_min, beta_max]``.
 
-    ``β/2`` if ``D < D_thre / 1.5``; ``2β`` if ``D > 1.5 D_thre``; otherwise unchanged.
+    ``β/2`` if ``D < D_thre / 1.5``; ``2β`` if ``D > 1.5 D_thre``; otherwise unchanged. Without
+    a floor, a long run of small KLs halves β towards 0 (after 130 halvings it is 0 in float32)
+    and the first large step then meets no penalty; doubling back takes as many iterations.
 
     Args:
       beta: ``[]`` current β.
       kl: ``[]`` D, the mean KL divergence over the sampled transitions (Eq. 5.4).
       kl_target: D_thre.
+      beta_min, beta_max: bounds on the result.
     """
     chex.assert_rank((beta, kl), 0)
     beta = jnp.where(kl < kl_target / 1.5, beta / 2.0, beta)
-    return jnp.where(kl > 1.5 * kl_target, beta * 2.0, beta)
+    beta = jnp.where(kl > 1.5 * kl_target, beta * 2.0, beta)
+    return jnp.clip(beta, beta_min, beta_max)
 
 
 def value_loss(values: jax.Array, targets: jax.Array) -> jax.Array:

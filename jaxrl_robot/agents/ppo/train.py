@@ -335,7 +335,9 @@ def make_trainer(
         # halve/double rule.
         (new_mean, new_log_std), _ = apply_actor(actor, actor_params, actor_stats, obs)
         kl = parallel.pmean(jnp.mean(gaussian_kl(old_mean, old_log_std, new_mean, new_log_std)))
-        kl_beta = adapt_kl_beta(state.kl_beta, kl, config.kl_target) if config.objective == "kl" else state.kl_beta
+        kl_beta = state.kl_beta
+        if config.objective == "kl":
+            kl_beta = adapt_kl_beta(kl_beta, kl, config.kl_target, config.kl_beta_min, config.kl_beta_max)
 
         # n critic updates on λ-return targets (Algorithm 8, lines 11-16).
         def critic_step(carry, k):
