@@ -13,9 +13,11 @@ from jaxrl_robot.agents.ddpg import (
     actor_loss,
     critic_loss,
     make_trainer,
+    smooth_target_action,
     soft_update,
     td_target,
 )
+from jaxrl_robot.checkpoint import Checkpointer
 from jaxrl_robot.evaluation import run_test_episodes, summarize_episodes
 from tests.replay.toy_goal_env import ToyGoalEnv
 
@@ -82,6 +84,15 @@ def test_soft_update_by_hand():
     np.testing.assert_allclose(new["b"], 0.05, rtol=1e-6)
 
 
+def test_target_smoothing_noise_is_clipped_and_actions_stay_in_range():
+    a = jnp.tile(jnp.array([[0.9, -0.2, 0.0]]), (4000, 1))
+    out = np.asarray(smooth_target_action(jax.random.PRNGKey(0), a, 0.2, 0.5))
+    np.testing.assert_allclose(out.max(0), [1.0, 0.3, 0.5], atol=1e-6)  # ±0.5 around μ', inside [-1, 1]
+    np.testing.assert_allclose(out.min(0), [0.4, -0.7, -0.5], atol=1e-6)
+    np.testing.assert_allclose(out[:, 2].std(), 0.2 * 0.988, rtol=0.05)  # σ of N(0, 0.2²) clipped at ±2.5σ
+    np.testing.assert_allclose(smooth_target_action(jax.random.PRNGKey(1), a, 0.0, 0.5), a)
+
+
 def _tiny(**kw):
     base = dict(epochs=1, cycles_per_epoch=1, updates_per_cycle=2, num_envs=2, batch_size=8, buffer_size=500,
                 actor_hidden=(8,), critic_hidden=(8,))
@@ -137,3 +148,66 @@ def test_sparse_her_learns_to_reach_goals():
     assert float(metrics["updates"]) == 3 * 10 * 20
     result = summarize_episodes(run_test_episodes(jax.random.PRNGKey(1), env, trainer.policy(state), 100))
     assert result["success_rate"] >= 0.9, result
+
+
+@pytest.mark.parametrize("schedule", ["episodes", "steps"])
+def test_observation_normaliser_tracks_stored_observations(schedule, tmp_path):
+    """``normalize_obs``: the running mean/variance equal those of every stored observation
+    (numpy oracle), the policy feeds the actor ``(obs − mean) / std`` and a checkpoint restores
+    the statistics; off, nothing changes."""
+    env = ToyGoalEnv(max_steps=5, step_size=0.05)
+    kw = dict(episode_length=5, schedule=schedule, buffer_size=500)
+    if schedule == "steps":
+        kw.update(total_steps=40, unroll_length=5, num_envs=2)
+    trainer = make_trainer(_tiny(normalize_obs=True, **kw), env)
+    update = jax.jit(trainer.update)
+    state = trainer.init(jax.random.PRNGKey(0))
+    for _ in range(2):
+        state, _ = update(state)
+    size = int(state.replay.size)
+    assert size > 10
+    stored = np.asarray(state.replay.data.obs[:size], np.float64)
+    stats = state.obs_stats
+    np.testing.assert_allclose(stats.count, size, rtol=1e-5)
+    np.testing.assert_allclose(stats.mean, stored.mean(0), rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(stats.var, stored.var(0), rtol=1e-3, atol=1e-5)
+    obs = jnp.asarray(stored[:3], jnp.float32)
+    actor = DDPGActor(action_size=3, hidden=(8,), output="tanh")
+    expected = actor.apply(state.actor_params, (obs - stats.mean) / jnp.sqrt(stats.var + 1e-8))
+    np.testing.assert_allclose(trainer.policy(state)(obs), expected, rtol=1e-5, atol=1e-6)
+    assert not np.allclose(expected, actor.apply(state.actor_params, obs), atol=1e-4)
+    ckpt = Checkpointer(str(tmp_path / "ckpt"))
+    ckpt.save(1, state, {"chunk": 1})
+    ckpt.close()
+    restored, _ = Checkpointer(str(tmp_path / "ckpt")).restore(1, trainer.init(jax.random.PRNGKey(1)))
+    for name in ("count", "mean", "var"):
+        np.testing.assert_array_equal(getattr(restored.obs_stats, name), getattr(stats, name))
+
+    plain = make_trainer(_tiny(**kw), env)
+    pstate, _ = jax.jit(plain.update)(plain.init(jax.random.PRNGKey(0)))
+    np.testing.assert_array_equal(pstate.obs_stats.mean, 0.0)
+    np.testing.assert_allclose(plain.policy(pstate)(obs), actor.apply(pstate.actor_params, obs), rtol=1e-6)
+
+
+def test_priorities_from_clipped_td_errors_bound_the_importance_weights():
+    """``priority_clip`` c and ``priority_eps`` ε: every re-prioritised slot lies in [ε^α, (c + ε)^α]
+    (which bounds the importance-weight ratio, Eq. 3.10); without clipping the TD errors exceed c."""
+    env = ToyGoalEnv(reward="sparse", max_steps=10)
+    kw = dict(per=True, alpha=0.6, episode_length=10, updates_per_cycle=20, num_envs=4, batch_size=16,
+              priority_eps=0.01, noise_scale=(0.5,))
+    for clip in (0.05, 0.0):
+        trainer = make_trainer(_tiny(priority_clip=clip, **kw), env)
+        update = jax.jit(trainer.update)
+        state = trainer.init(jax.random.PRNGKey(0))
+        for _ in range(3):
+            state, _ = update(state)
+        size = int(state.replay.size)
+        leaves = np.asarray(state.replay.tree.leaf_values[:size])
+        assert leaves.min() >= 0.01**0.6 * (1 - 1e-5)
+        if clip:
+            # sampled slots were re-prioritised (< the initial max priority 1); all within (c + ε)^α
+            assert leaves.max() <= 1.0 + 1e-6 and (leaves < 1.0).sum() > 0
+            updated = leaves[leaves < 1.0]
+            assert updated.max() <= (clip + 0.01) ** 0.6 * (1 + 1e-5)
+        else:
+            assert leaves[leaves < 1.0].max() > (0.05 + 0.01) ** 0.6

@@ -70,6 +70,14 @@ class DDPGConfig:
     """PER initial importance-sampling exponent β0."""
     beta_increment: float = 0.001
     """PER increment of β per update (up to 1)."""
+    priority_eps: float = 1e-6
+    """PER: ε of the priority ``p = min(|δ|, priority_clip) + ε``; the smallest priority, so it bounds
+    the largest importance weight relative to the others (Eq. 3.10 normalises by the largest)."""
+    priority_clip: float = 0.0
+    """PER: clip ``|δ|`` to this before it becomes a priority (0: no clipping).  Bounds the
+    priority ratio to ``((priority_clip + ε) / ε)^α``, so that a few unpredictable transitions
+    (terminations the observation cannot foresee) neither dominate the mini-batches nor shrink
+    every other importance weight."""
     her: str = "none"
     """Hindsight relabelling strategy: 'none', 'final', 'future' or 'random' (episodes schedule only)."""
     her_k: int = 2
@@ -101,6 +109,17 @@ class DDPGConfig:
     reward with γ = 0.9 (as in the HER reference implementation); empty: no clipping."""
     max_grad_norm: float = 0.0
     """Clip gradients to this global norm (0: no clipping)."""
+    target_noise: float = 0.0
+    """σ of Gaussian noise added to the target actor's action in the critic target,
+    ``a' = clip(μ'(s') + clip(ξ, −target_noise_clip, target_noise_clip), −1, 1)`` (target policy
+    smoothing, Fujimoto et al. 2018): the target averages Q' over nearby actions, so the critic
+    cannot keep narrow peaks in a that the actor would chase.  0: plain DDPG (Algorithm 1)."""
+    target_noise_clip: float = 0.5
+    """Bound on the target-smoothing noise (used when ``target_noise`` > 0)."""
+    normalize_obs: bool = False
+    """Feed actor and critic ``(obs − mean) / std`` (clipped to ±10) with a running mean and variance
+    of every observation the lanes visited (the replay keeps raw observations, normalised when
+    sampled with the current statistics); the statistics are part of the training state."""
 
     @property
     def iterations(self) -> int:
@@ -126,6 +145,8 @@ class DDPGConfig:
         check_range("alpha", self.alpha, 0.0, 1.0)
         check_range("beta0", self.beta0, 0.0, 1.0)
         check_range("beta_increment", self.beta_increment, 0.0)
+        check_range("priority_eps", self.priority_eps, 0.0, lo_open=True)
+        check_range("priority_clip", self.priority_clip, 0.0)
         check_choice("her", self.her, STRATEGIES)
         if self.her in ("future", "random"):
             check_range("her_k", self.her_k, 1)
@@ -147,6 +168,8 @@ class DDPGConfig:
         if self.target_clip and (len(self.target_clip) != 2 or self.target_clip[0] > self.target_clip[1]):
             raise ConfigError(f"target_clip={self.target_clip!r} must be () or (lo, hi) with lo <= hi")
         check_range("max_grad_norm", self.max_grad_norm, 0.0)
+        check_range("target_noise", self.target_noise, 0.0)
+        check_range("target_noise_clip", self.target_noise_clip, 0.0)
         return self
 
     def replace(self, **changes) -> DDPGConfig:

@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
-__all__ = ["actor_loss", "critic_loss", "soft_update", "td_target"]
+__all__ = ["actor_loss", "critic_loss", "smooth_target_action", "soft_update", "td_target"]
 
 
 def td_target(reward: jax.Array, terminated: jax.Array, next_q: jax.Array, gamma: float) -> jax.Array:
@@ -57,3 +57,12 @@ def soft_update(target: Any, online: Any, tau: float) -> Any:
     """``θ' ← ε θ + (1 − ε) θ'`` for every leaf (Algorithm 1, lines 16–17)."""
     return optax.incremental_update(online, target, tau)
 
+
+def smooth_target_action(key: jax.Array, action: jax.Array, noise: float, noise_clip: float) -> jax.Array:
+    """Target policy smoothing: ``clip(a + clip(ξ, −c, c), −1, 1)`` with ``ξ ~ N(0, noise²)``: ``[N, A] -> [N, A]``.
+
+    Applied to the target actor's action ``μ'(s')`` before ``Q'`` in the critic target, so the
+    target is an average of ``Q'`` over nearby actions (Fujimoto et al. 2018).
+    """
+    xi = noise * jax.random.normal(key, action.shape, action.dtype)
+    return jnp.clip(action + jnp.clip(xi, -noise_clip, noise_clip), -1.0, 1.0)

@@ -39,8 +39,9 @@ from flax import struct
 from envs_mjx.base import EpisodeWrapper, wrap_for_training
 from envs_mjx.config import ConfigError
 from jaxrl_robot.agents.ddpg.config import DDPGConfig
-from jaxrl_robot.agents.ddpg.losses import actor_loss, critic_loss, soft_update, td_target
+from jaxrl_robot.agents.ddpg.losses import actor_loss, critic_loss, smooth_target_action, soft_update, td_target
 from jaxrl_robot.agents.ddpg.networks import DDPGActor, DDPGCritic
+from jaxrl_robot.networks import init_running_stats, normalize, update_running_stats
 from jaxrl_robot.noise import Noise, NoiseState, make_noise
 from jaxrl_robot.replay import (
     GoalEpisode,
@@ -49,7 +50,7 @@ from jaxrl_robot.replay import (
     make_prioritized_replay,
     make_uniform_replay,
 )
-from jaxrl_robot.types import Metrics, Policy, Trainer
+from jaxrl_robot.types import Metrics, Policy, RunningStats, Trainer
 
 __all__ = ["GOAL_API", "DDPGState", "make_networks", "make_noise_for", "make_train", "make_trainer"]
 
@@ -67,6 +68,7 @@ class DDPGState:
       replay: uniform or prioritised replay state (stored transitions, sum-tree, β).
       env_state: ``State [B]`` of the lanes ('steps' schedule; the last cycle's for 'episodes').
       noise_state: ``NoiseState [B, A]`` of every lane.
+      obs_stats: running mean and variance of the observations (used only with ``normalize_obs``).
       key: PRNG key of the run.
       iteration: ``[] int32`` iterations (cycles or unroll phases) done.
       updates: ``[] int32`` gradient updates done.
@@ -81,6 +83,7 @@ class DDPGState:
     replay: Any
     env_state: State
     noise_state: NoiseState
+    obs_stats: RunningStats
     key: jax.Array
     iteration: jax.Array
     updates: jax.Array
@@ -164,7 +167,8 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
         )
     if config.per:
         replay = make_prioritized_replay(
-            config.buffer_size, config.batch_size, config.alpha, config.beta0, config.beta_increment
+            config.buffer_size, config.batch_size, config.alpha, config.beta0, config.beta_increment,
+            priority_eps=config.priority_eps,
         )
     else:
         replay = make_uniform_replay(config.buffer_size, config.batch_size)
@@ -179,13 +183,20 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
         lane_env = None
         batched_env = wrap_for_training(env, episode_length=T)
 
+    def norm(stats: RunningStats, obs: jax.Array) -> jax.Array:
+        """Network input: ``obs [..., O]`` normalised by ``stats`` with ``normalize_obs``, else unchanged."""
+        return normalize(stats if config.normalize_obs else None, obs)
+
     def act(params: Any, obs: jax.Array) -> jax.Array:
+        """``μ(x)`` of an already normalised input ``x [..., O]``."""
         return actor.apply(params, obs)
 
-    def explore(key: jax.Array, params: Any, obs: jax.Array, nstate: NoiseState) -> tuple[jax.Array, NoiseState]:
-        """``a = clip(μ(s) + ω, -1, 1)`` (Eq. 3.7) for every lane: ``[B, O] -> [B, A]``."""
+    def explore(
+        key: jax.Array, params: Any, stats: RunningStats, obs: jax.Array, nstate: NoiseState
+    ) -> tuple[jax.Array, NoiseState]:
+        """``a = clip(μ(s) + ω, -1, 1)`` (Eq. 3.7) for every lane: raw ``[B, O] -> [B, A]``."""
         eps, nstate = jax.vmap(noise.sample)(jax.random.split(key, obs.shape[0]), nstate)
-        return jnp.clip(act(params, obs) + eps, -1.0, 1.0), nstate
+        return jnp.clip(act(params, norm(stats, obs)) + eps, -1.0, 1.0), nstate
 
     def fresh_noise() -> NoiseState:
         return jax.vmap(lambda _: noise.init())(jnp.arange(B))
@@ -216,13 +227,14 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
             replay=replay.init(example),
             env_state=env_state,
             noise_state=fresh_noise(),
+            obs_stats=init_running_stats(obs_size),
             key=k_run,
             iteration=jnp.zeros((), jnp.int32),
             updates=jnp.zeros((), jnp.int32),
         )
 
     # ---- acting: 'episodes' schedule -----------------------------------------------------
-    def run_episodes(key: jax.Array, params: Any) -> tuple[State, Transition, jax.Array, dict]:
+    def run_episodes(key: jax.Array, params: Any, stats: RunningStats) -> tuple[State, Transition, jax.Array, dict]:
         """Run B whole episodes; returns (final state, Transition [T*B*C], mask [T*B*C], episode sums)."""
         k_reset, k_steps, k_her = jax.random.split(key, 3)
         state0 = jax.vmap(lane_env.reset)(jax.random.split(k_reset, B))
@@ -230,7 +242,7 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
 
         def body(carry, k):
             s, nstate, finished = carry
-            a, nstate = explore(k, params, s.obs, nstate)
+            a, nstate = explore(k, params, stats, s.obs, nstate)
             ns = jax.vmap(lane_env.step)(s, a)
             done = ns.done.astype(jnp.float32)
             term = done * (1.0 - ns.info["truncation"].astype(jnp.float32))
@@ -275,12 +287,12 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
         return final, flat, mask.reshape(-1), sums
 
     # ---- acting: 'steps' schedule --------------------------------------------------------
-    def run_steps(key: jax.Array, params: Any, s: State, nstate: NoiseState):
+    def run_steps(key: jax.Array, params: Any, stats: RunningStats, s: State, nstate: NoiseState):
         """``unroll_length`` steps of every auto-resetting lane; Transition ``[U*B]``."""
 
         def body(carry, k):
             s, nstate = carry
-            a, nstate = explore(k, params, s.obs, nstate)
+            a, nstate = explore(k, params, stats, s.obs, nstate)
             ns = batched_env.step(s, a)
             done = ns.done.astype(jnp.float32)
             term = done * (1.0 - ns.info["truncation"].astype(jnp.float32))
@@ -300,12 +312,21 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
         return s, nstate, flat, jax.tree.map(jnp.sum, ep)
 
     # ---- learning ------------------------------------------------------------------------
-    def learn_step(carry: tuple, key: jax.Array) -> tuple[tuple, dict[str, jax.Array]]:
+    def priority_error(td: jax.Array) -> jax.Array:
+        """``|δ|`` clipped to ``priority_clip`` (when > 0) for the new priorities: ``[N] -> [N]``."""
+        return jnp.minimum(jnp.abs(td), config.priority_clip) if config.priority_clip > 0 else td
+
+    def learn_step(stats: RunningStats, carry: tuple, key: jax.Array) -> tuple[tuple, dict[str, jax.Array]]:
         actor_p, critic_p, t_actor, t_critic, a_opt, c_opt, buf = carry
-        smp = replay.sample(key, buf)
+        k_sample, k_smooth = jax.random.split(key) if config.target_noise > 0 else (key, key)
+        smp = replay.sample(k_sample, buf)
         tr: Transition = smp.experience
+        tr = tr._replace(obs=norm(stats, tr.obs), next_obs=norm(stats, tr.next_obs))
         weights = smp.weights if config.per else None
-        next_q = critic.apply(t_critic, tr.next_obs, act(t_actor, tr.next_obs))
+        next_a = act(t_actor, tr.next_obs)
+        if config.target_noise > 0:
+            next_a = smooth_target_action(k_smooth, next_a, config.target_noise, config.target_noise_clip)
+        next_q = critic.apply(t_critic, tr.next_obs, next_a)
         y = td_target(tr.reward * config.reward_scale, tr.terminated, next_q, config.gamma)
         if config.target_clip:
             y = jnp.clip(y, config.target_clip[0], config.target_clip[1])
@@ -327,7 +348,7 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
         t_actor = soft_update(t_actor, actor_p, config.tau)
         t_critic = soft_update(t_critic, critic_p, config.tau)
         if config.per:
-            buf = replay.update_priorities(buf, smp.indices, td)
+            buf = replay.update_priorities(buf, smp.indices, priority_error(td))
         out = {"critic_loss": closs, "actor_loss": aloss, "q": jnp.mean(q), "td_abs": jnp.mean(jnp.abs(td))}
         return (actor_p, critic_p, t_actor, t_critic, a_opt, c_opt, buf), out
 
@@ -337,7 +358,7 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
                  state.actor_opt, state.critic_opt, state.replay)
 
         def run(c):
-            c, out = jax.lax.scan(learn_step, c, jax.random.split(key, n))
+            c, out = jax.lax.scan(lambda c_, k: learn_step(state.obs_stats, c_, k), c, jax.random.split(key, n))
             return c, jax.tree.map(jnp.sum, out), jnp.asarray(n, jnp.float32)
 
         def skip(c):
@@ -350,17 +371,35 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
                               actor_opt=ao, critic_opt=co, replay=buf, updates=state.updates + count.astype(jnp.int32))
         return state, sums, count
 
+    def observe(stats: RunningStats, obs: jax.Array, mask: jax.Array | None) -> RunningStats:
+        """Merge the stored rows ``obs [N, O]`` (where ``mask [N]``) into the statistics (``normalize_obs``)."""
+        if not config.normalize_obs:
+            return stats
+        if mask is None:
+            return update_running_stats(stats, obs)
+        w = mask.astype(jnp.float32)[:, None]
+        n = jnp.maximum(jnp.sum(w), 1.0)
+        mean_b = jnp.sum(w * obs, axis=0) / n
+        var_b = jnp.sum(w * (obs - mean_b) ** 2, axis=0) / n
+        count = stats.count + n
+        delta = mean_b - stats.mean
+        mean = stats.mean + delta * n / count
+        var = (stats.var * stats.count + var_b * n + delta**2 * stats.count * n / count) / count
+        return RunningStats(count=count, mean=mean, var=var)
+
     # ---- one iteration, one chunk ------------------------------------------------------------
     def iteration(state: DDPGState) -> tuple[DDPGState, tuple]:
         key, k_act, k_learn = jax.random.split(state.key, 3)
         if config.schedule == "episodes":
-            env_state, flat, mask, ep = run_episodes(k_act, state.actor_params)
+            env_state, flat, mask, ep = run_episodes(k_act, state.actor_params, state.obs_stats)
             buf = replay.add(state.replay, flat, mask=mask)
-            state = state.replace(env_state=env_state, replay=buf)
+            state = state.replace(env_state=env_state, replay=buf, obs_stats=observe(state.obs_stats, flat.obs, mask))
             n_updates = config.updates_per_cycle
         else:
-            env_state, nstate, flat, ep = run_steps(k_act, state.actor_params, state.env_state, state.noise_state)
-            state = state.replace(env_state=env_state, noise_state=nstate, replay=replay.add(state.replay, flat))
+            env_state, nstate, flat, ep = run_steps(k_act, state.actor_params, state.obs_stats, state.env_state,
+                                                    state.noise_state)
+            state = state.replace(env_state=env_state, noise_state=nstate, replay=replay.add(state.replay, flat),
+                                  obs_stats=observe(state.obs_stats, flat.obs, None))
             n_updates = config.updates_per_iteration
         state, sums, count = learn(state, k_learn, n_updates)
         state = state.replace(key=key, iteration=state.iteration + 1)
@@ -386,7 +425,7 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
 
     def policy(state: DDPGState) -> Policy:
         def greedy(obs: jax.Array) -> jax.Array:
-            return act(state.actor_params, obs)
+            return act(state.actor_params, norm(state.obs_stats, obs))
 
         return greedy
 
