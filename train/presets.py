@@ -255,6 +255,9 @@ def ddpg_preset(name: str, env_name: str, episode_length: int, reward: str | Non
             actor_hidden=(300, 100), critic_hidden=(300, 100), noise="ou", noise_scale=(0.2,),
             noise_reversion=(0.15,), noise_mean=(0.0,),
         )
+        # cpu keeps Table 3.3's algorithm: normalize_obs, γ 0.99, target smoothing, bounded PER
+        # priorities and uniform replay each left the unicycle's error sums 2-10x the thesis's, with
+        # differences within the seed-to-seed spread (benchmarks/results/cpu-2core-ddpg_tracking.md).
         presets = {
             "thesis": {},
             "cpu": dict(num_envs=4, unroll_length=8, updates_per_iteration=32),
