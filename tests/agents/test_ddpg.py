@@ -100,6 +100,15 @@ def _tiny(**kw):
     return DDPGConfig(**base)
 
 
+def _trained(trainer, chunks, seed=0):
+    """The state after ``chunks`` jitted update chunks from ``init(PRNGKey(seed))``."""
+    update = jax.jit(trainer.update)
+    state = trainer.init(jax.random.PRNGKey(seed))
+    for _ in range(chunks):
+        state, _ = update(state)
+    return state
+
+
 @pytest.mark.parametrize("step_size,noise,expected", [(1e-4, 0.0, 0.0), (2.0, 10.0, 1.0)])
 def test_replay_marks_termination_only(step_size, noise, expected):
     # tiny steps: every episode is cut by the time limit (truncation, d = 0);
@@ -160,10 +169,7 @@ def test_observation_normaliser_tracks_stored_observations(schedule, tmp_path):
     if schedule == "steps":
         kw.update(total_steps=40, unroll_length=5, num_envs=2)
     trainer = make_trainer(_tiny(normalize_obs=True, **kw), env)
-    update = jax.jit(trainer.update)
-    state = trainer.init(jax.random.PRNGKey(0))
-    for _ in range(2):
-        state, _ = update(state)
+    state = _trained(trainer, 2)
     size = int(state.replay.size)
     assert size > 10
     stored = np.asarray(state.replay.data.obs[:size], np.float64)
@@ -196,11 +202,7 @@ def test_priorities_from_clipped_td_errors_bound_the_importance_weights():
     kw = dict(per=True, alpha=0.6, episode_length=10, updates_per_cycle=20, num_envs=4, batch_size=16,
               priority_eps=0.01, noise_scale=(0.5,))
     for clip in (0.05, 0.0):
-        trainer = make_trainer(_tiny(priority_clip=clip, **kw), env)
-        update = jax.jit(trainer.update)
-        state = trainer.init(jax.random.PRNGKey(0))
-        for _ in range(3):
-            state, _ = update(state)
+        state = _trained(make_trainer(_tiny(priority_clip=clip, **kw), env), 3)
         size = int(state.replay.size)
         leaves = np.asarray(state.replay.tree.leaf_values[:size])
         assert leaves.min() >= 0.01**0.6 * (1 - 1e-5)
