@@ -298,27 +298,37 @@ def init_running_stats(size: int) -> RunningStats:
     )
 
 
-def update_running_stats(stats: RunningStats, batch: jax.Array, axis_name: str | None = None) -> RunningStats:
+def update_running_stats(
+    stats: RunningStats, batch: jax.Array, axis_name: str | None = None, mask: jax.Array | None = None
+) -> RunningStats:
     """Merge a batch ``[..., D]`` into ``stats`` (Chan et al.'s parallel variance update).
 
     ``axis_name``: a mapped axis (e.g. the device axis inside ``shard_map``) whose batches are
-    pooled first, so every device ends with the same statistics.
+    pooled first, so every device ends with the same statistics. ``mask`` (``[...]``, the batch's
+    leading shape): only rows where it is nonzero count; a batch with no such row changes nothing.
     """
     x = batch.reshape(-1, batch.shape[-1]).astype(jnp.float32)
-    n = jnp.asarray(x.shape[0], jnp.float32)
-    total = jnp.sum(x, axis=0)
+    if mask is None:
+        w = jnp.ones((x.shape[0], 1), jnp.float32)
+    else:
+        w = (mask.reshape(-1, 1) != 0).astype(jnp.float32)
+    n = jnp.sum(w)
+    total = jnp.sum(w * x, axis=0)
     if axis_name is not None:
         n, total = jax.lax.psum((n, total), axis_name)
-    mean_b = total / n
-    sq = jnp.sum((x - mean_b) ** 2, axis=0)
+    safe_n = jnp.maximum(n, 1.0)
+    mean_b = total / safe_n
+    sq = jnp.sum(w * (x - mean_b) ** 2, axis=0)
     if axis_name is not None:
         sq = jax.lax.psum(sq, axis_name)
-    var_b = sq / n
+    var_b = sq / safe_n
     count = stats.count + n
+    safe_count = jnp.maximum(count, 1.0)
     delta = mean_b - stats.mean
-    mean = stats.mean + delta * n / count
-    var = (stats.var * stats.count + var_b * n + delta**2 * stats.count * n / count) / count
-    return RunningStats(count=count, mean=mean, var=var)
+    mean = stats.mean + delta * n / safe_count
+    var = (stats.var * stats.count + var_b * n + delta**2 * stats.count * n / safe_count) / safe_count
+    merged = RunningStats(count=count, mean=mean, var=var)
+    return jax.tree.map(lambda new, old: jnp.where(n > 0, new, old), merged, stats)
 
 
 def normalize(stats: RunningStats | None, obs: jax.Array, clip: float = 10.0) -> jax.Array:

@@ -176,3 +176,27 @@ def test_gaussian_sample_statistics():
     a = jax.vmap(lambda k: gaussian_sample(k, mean, log_std))(keys)
     np.testing.assert_allclose(a.mean(0), mean, atol=0.02)
     np.testing.assert_allclose(a.std(0), [0.8, 0.1], rtol=0.03)
+
+
+def test_running_stats_merge_equals_numpy_over_all_rows_and_respects_the_mask():
+    from jaxrl_robot.networks import init_running_stats, update_running_stats
+
+    rng = np.random.default_rng(0)
+    a, b = rng.normal(1.0, 2.0, (7, 3)), rng.normal(-3.0, 0.5, (5, 3))
+    stats = update_running_stats(update_running_stats(init_running_stats(3), jnp.asarray(a)), jnp.asarray(b))
+    both = np.concatenate([a, b])
+    np.testing.assert_allclose(stats.count, 12, atol=1e-3)  # + the 1e-4 prior count
+    np.testing.assert_allclose(stats.mean, both.mean(0), rtol=1e-4, atol=1e-4)
+    np.testing.assert_allclose(stats.var, both.var(0), rtol=1e-4, atol=1e-4)
+    # masked: only the rows marked count
+    mask = np.array([1, 0, 1, 1, 0], np.float32)
+    first = update_running_stats(init_running_stats(3), jnp.asarray(a))
+    masked = update_running_stats(first, jnp.asarray(b), mask=mask)
+    kept = np.concatenate([a, b[mask > 0]])
+    np.testing.assert_allclose(masked.count, 10, atol=1e-3)
+    np.testing.assert_allclose(masked.mean, kept.mean(0), rtol=1e-4, atol=1e-4)
+    np.testing.assert_allclose(masked.var, kept.var(0), rtol=1e-4, atol=1e-4)
+    # a batch with no marked row leaves the statistics as they were
+    same = update_running_stats(masked, jnp.asarray(b), mask=np.zeros(5, np.float32))
+    for name in ("count", "mean", "var"):
+        np.testing.assert_array_equal(getattr(same, name), getattr(masked, name))

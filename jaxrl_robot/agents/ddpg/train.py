@@ -375,17 +375,7 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
         """Merge the stored rows ``obs [N, O]`` (where ``mask [N]``) into the statistics (``normalize_obs``)."""
         if not config.normalize_obs:
             return stats
-        if mask is None:
-            return update_running_stats(stats, obs)
-        w = mask.astype(jnp.float32)[:, None]
-        n = jnp.maximum(jnp.sum(w), 1.0)
-        mean_b = jnp.sum(w * obs, axis=0) / n
-        var_b = jnp.sum(w * (obs - mean_b) ** 2, axis=0) / n
-        count = stats.count + n
-        delta = mean_b - stats.mean
-        mean = stats.mean + delta * n / count
-        var = (stats.var * stats.count + var_b * n + delta**2 * stats.count * n / count) / count
-        return RunningStats(count=count, mean=mean, var=var)
+        return update_running_stats(stats, obs, mask=mask)
 
     # ---- one iteration, one chunk ------------------------------------------------------------
     def iteration(state: DDPGState) -> tuple[DDPGState, tuple]:
