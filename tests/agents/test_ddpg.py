@@ -11,11 +11,14 @@ from jaxrl_robot.agents.ddpg import (
     DDPGConfig,
     DDPGCritic,
     actor_loss,
+    clipped_double_q,
     critic_loss,
+    linear_noise_factor,
     make_trainer,
     smooth_target_action,
     soft_update,
     td_target,
+    twin_critic_loss,
 )
 from jaxrl_robot.checkpoint import Checkpointer
 from jaxrl_robot.evaluation import run_test_episodes, summarize_episodes
@@ -76,6 +79,36 @@ def test_actor_gradient_is_dq_da_times_dmu_dtheta():
     assert out.shape == (3, 2) and bool(((out >= 0) & (out <= 1)).all())
 
 
+def test_twin_critic_target_and_loss_by_hand():
+    """Clipped double Q on two tiny linear critics: y = r + γ(1 − d)·min(Q1', Q2') (Eq. 6.2), and
+    the loss sums each critic's mean squared error against that shared target."""
+    critic = DDPGCritic(hidden=())
+    p1 = _linear_params([1.0, 0.0, 1.0], 0.0)  # Q1 = s0 + a
+    p2 = _linear_params([0.0, 1.0, -1.0], 0.5)  # Q2 = s1 − a + 0.5
+    stacked = jax.tree.map(lambda a, b: jnp.stack([a, b]), p1, p2)
+    next_obs = jnp.array([[1.0, 2.0], [3.0, -1.0], [0.0, 0.0]])
+    next_act = jnp.array([[0.5], [1.0], [-2.0]])
+    next_q = jax.vmap(critic.apply, in_axes=(0, None, None))(stacked, next_obs, next_act)
+    np.testing.assert_allclose(next_q, [[1.5, 4.0, -2.0], [2.0, -1.5, 2.5]], rtol=1e-6)
+    y = td_target(jnp.array([1.0, 0.5, -1.0]), jnp.array([0.0, 0.0, 1.0]), clipped_double_q(next_q), 0.9)
+    np.testing.assert_allclose(y, [1.0 + 0.9 * 1.5, 0.5 + 0.9 * -1.5, -1.0], rtol=1e-6)
+    # one critic: the plain DDPG target
+    np.testing.assert_allclose(clipped_double_q(next_q[:1]), next_q[0])
+    q = jnp.array([[2.0, 0.0, -1.0], [1.0, -1.0, 0.0]])
+    weights = jnp.array([1.0, 0.5, 2.0])
+    loss, td = twin_critic_loss(q, y, weights)
+    np.testing.assert_allclose(td, y[None] - q, rtol=1e-6)
+    expected = sum(np.mean(np.asarray(weights) * (np.asarray(y) - np.asarray(qk)) ** 2) for qk in q)
+    np.testing.assert_allclose(loss, expected, rtol=1e-6)
+
+
+def test_linear_noise_factor_by_hand():
+    # 1 → 0.2 over the first half of 100 iterations, then held
+    f = [float(linear_noise_factor(jnp.asarray(i), 100, 0.2, 0.5)) for i in (0, 25, 50, 90)]
+    np.testing.assert_allclose(f, [1.0, 0.6, 0.2, 0.2], rtol=1e-6)
+    np.testing.assert_allclose(linear_noise_factor(jnp.asarray(30), 100, 1.0, 1.0), 1.0)
+
+
 def test_soft_update_by_hand():
     target = {"w": jnp.array([1.0, 2.0]), "b": jnp.array(0.0)}
     online = {"w": jnp.array([3.0, -2.0]), "b": jnp.array(1.0)}
@@ -133,6 +166,12 @@ def test_replay_marks_termination_only(step_size, noise, expected):
 
 
 def test_config_errors_name_the_field():
+    with pytest.raises(ConfigError, match=r"policy_delay=0 is out of range; allowed \[1, inf\]"):
+        _tiny(policy_delay=0).validate()
+    with pytest.raises(ConfigError, match=r"noise_end_factor=1.5 is out of range; allowed \[0, 1\]"):
+        _tiny(noise_end_factor=1.5).validate()
+    with pytest.raises(ConfigError, match=r"noise_decay_fraction=0 is out of range; allowed \(0, 1\]"):
+        _tiny(noise_decay_fraction=0).validate()
     with pytest.raises(ConfigError, match="her='best' is not valid"):
         _tiny(her="best").validate()
     with pytest.raises(ConfigError, match="her='future' needs whole episodes"):
@@ -213,3 +252,46 @@ def test_priorities_from_clipped_td_errors_bound_the_importance_weights():
             assert updated.max() <= (clip + 0.01) ** 0.6 * (1 + 1e-5)
         else:
             assert leaves[leaves < 1.0].max() > (0.05 + 0.01) ** 0.6
+
+
+def test_twin_critics_with_policy_delay_count_actor_and_target_updates():
+    """``twin_critics`` keeps two critics (stacked, different initialisations) and their targets;
+    with ``policy_delay`` 3 the actor and both targets move only at updates 3, 6, …: after 2 updates
+    they are untouched while the critics trained, after 4 and 6 the actor has had 1 and 2 Adam steps."""
+    env = ToyGoalEnv(max_steps=5, step_size=0.05)
+    trainer = make_trainer(_tiny(twin_critics=True, policy_delay=3, per=True, episode_length=5), env)
+    update = jax.jit(trainer.update)
+    start = trainer.init(jax.random.PRNGKey(0))
+    kernels = jax.tree.leaves(start.critic_params)
+    assert all(k.shape[0] == 2 for k in kernels)
+    assert not np.allclose(kernels[-1][0], kernels[-1][1])
+
+    def same(a, b):
+        return all(np.array_equal(x, y) for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True))
+
+    state, metrics = update(start)
+    assert int(state.updates) == 2 and int(state.critic_opt[0].count) == 2 and int(state.actor_opt[0].count) == 0
+    assert same(state.actor_params, start.actor_params) and same(state.target_actor_params, start.actor_params)
+    assert same(state.target_critic_params, start.critic_params)
+    assert not same(state.critic_params, start.critic_params)
+    assert np.isfinite(float(metrics["critic_loss"])) and np.isfinite(float(metrics["actor_loss"]))
+    for updates, actor_steps in ((4, 1), (6, 2)):
+        state, _ = update(state)
+        assert int(state.updates) == updates and int(state.actor_opt[0].count) == actor_steps
+    assert not same(state.target_critic_params, start.critic_params)
+
+
+def test_noise_schedule_ends_at_the_greedy_action():
+    """``noise_end_factor`` 0 reached after a quarter of the run: the first iteration stores noisy
+    actions, every later one exactly ``μ(s)`` (no updates run, so μ is the initial actor)."""
+    env = ToyGoalEnv(max_steps=50, step_size=0.05)
+    cfg = _tiny(schedule="steps", total_steps=32, num_envs=2, unroll_length=4, episode_length=50, learning_starts=400,
+                noise_scale=(0.3,), noise_end_factor=0.0, noise_decay_fraction=0.25)
+    trainer = make_trainer(cfg, env)
+    state = _trained(trainer, 4)
+    assert int(state.updates) == 0 and int(state.replay.size) == 32
+    data = state.replay.data
+    greedy = np.asarray(trainer.policy(state)(data.obs[:32]))
+    gap = np.abs(np.asarray(data.action[:32]) - greedy).max(axis=1)
+    assert gap[:8].min() > 1e-3  # iteration 0: factor 1
+    np.testing.assert_allclose(gap[8:], 0.0, atol=1e-6)

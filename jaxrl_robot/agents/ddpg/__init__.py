@@ -1,7 +1,16 @@
 """DDPG (thesis §3.1, Algorithm 1) with prioritised (§3.2) and hindsight (§3.3) replay."""
 
 from jaxrl_robot.agents.ddpg.config import NOISES, SCHEDULES, DDPGConfig
-from jaxrl_robot.agents.ddpg.losses import actor_loss, critic_loss, smooth_target_action, soft_update, td_target
+from jaxrl_robot.agents.ddpg.losses import (
+    actor_loss,
+    clipped_double_q,
+    critic_loss,
+    linear_noise_factor,
+    smooth_target_action,
+    soft_update,
+    td_target,
+    twin_critic_loss,
+)
 from jaxrl_robot.agents.ddpg.networks import OUTPUTS, DDPGActor, DDPGCritic
 from jaxrl_robot.agents.ddpg.train import GOAL_API, DDPGState, make_networks, make_noise_for, make_train, make_trainer
 
@@ -15,7 +24,9 @@ __all__ = [
     "DDPGCritic",
     "DDPGState",
     "actor_loss",
+    "clipped_double_q",
     "critic_loss",
+    "linear_noise_factor",
     "make_networks",
     "make_noise_for",
     "make_train",
@@ -23,4 +34,5 @@ __all__ = [
     "smooth_target_action",
     "soft_update",
     "td_target",
+    "twin_critic_loss",
 ]

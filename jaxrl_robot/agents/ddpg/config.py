@@ -120,6 +120,21 @@ class DDPGConfig:
     """Feed actor and critic ``(obs − mean) / std`` (clipped to ±10) with a running mean and variance
     of every observation the lanes visited (the replay keeps raw observations, normalised when
     sampled with the current statistics); the statistics are part of the training state."""
+    twin_critics: bool = False
+    """Clipped double Q (TD3, thesis Eq. 6.2): two critics Q1, Q2 with their own parameters and
+    targets (stacked on a leading axis of size 2 in the state), both regressed on
+    ``y = r + γ (1 − d) min(Q1'(s', a'), Q2'(s', a'))``; the actor maximises Q1; PER priorities
+    use the mean of ``|δ1|`` and ``|δ2|``.  The minimum counters the critic's over-estimation."""
+    policy_delay: int = 1
+    """Update the actor and both target networks once every ``policy_delay`` critic updates
+    (TD3 uses 2; 1 is Algorithm 1).  Counted over the whole run: after n updates the actor has had
+    ``n // policy_delay`` steps."""
+    noise_end_factor: float = 1.0
+    """Linear exploration-noise schedule: the noise sample ω is multiplied by
+    ``f = 1 + (noise_end_factor − 1) · min(1, iteration / (noise_decay_fraction · iterations))``,
+    falling from 1 to ``noise_end_factor`` (in [0, 1]) and then held.  1: constant noise."""
+    noise_decay_fraction: float = 1.0
+    """Fraction of the run's iterations over which the noise factor falls (in (0, 1])."""
 
     @property
     def iterations(self) -> int:
@@ -170,6 +185,11 @@ class DDPGConfig:
         check_range("max_grad_norm", self.max_grad_norm, 0.0)
         check_range("target_noise", self.target_noise, 0.0)
         check_range("target_noise_clip", self.target_noise_clip, 0.0)
+        check_range("policy_delay", self.policy_delay, 1)
+        if int(self.policy_delay) != self.policy_delay:
+            raise ConfigError(f"policy_delay={self.policy_delay!r} must be an integer")
+        check_range("noise_end_factor", self.noise_end_factor, 0.0, 1.0)
+        check_range("noise_decay_fraction", self.noise_decay_fraction, 0.0, 1.0, lo_open=True)
         return self
 
     def replace(self, **changes) -> DDPGConfig:

@@ -13,7 +13,16 @@ import jax
 import jax.numpy as jnp
 import optax
 
-__all__ = ["actor_loss", "critic_loss", "smooth_target_action", "soft_update", "td_target"]
+__all__ = [
+    "actor_loss",
+    "clipped_double_q",
+    "critic_loss",
+    "linear_noise_factor",
+    "smooth_target_action",
+    "soft_update",
+    "td_target",
+    "twin_critic_loss",
+]
 
 
 def td_target(reward: jax.Array, terminated: jax.Array, next_q: jax.Array, gamma: float) -> jax.Array:
@@ -47,6 +56,33 @@ def critic_loss(q: jax.Array, target: jax.Array, weights: jax.Array | None = Non
     return jnp.mean(sq), td
 
 
+def clipped_double_q(next_q: jax.Array) -> jax.Array:
+    """Clipped double Q (TD3, Eq. 6.2): ``min_k Q'_k(s', a')`` over the critics: ``[K, N] -> [N]``.
+
+    With ``K = 1`` this is plain DDPG's ``Q'(s', a')``; fed to :func:`td_target` it gives
+    ``y = r + γ (1 − d) min(Q1', Q2')``.
+    """
+    chex.assert_rank(next_q, 2)
+    return jnp.min(next_q, axis=0)
+
+
+def twin_critic_loss(
+    q: jax.Array, target: jax.Array, weights: jax.Array | None = None
+) -> tuple[jax.Array, jax.Array]:
+    """Eq. 3.4 for each of ``K`` critics regressed on the same target, summed over the critics.
+
+    Args:
+      q: ``[K, N]`` values ``Q_k(s, a)``.
+      target: ``[N]`` shared targets ``y``.
+      weights: optional ``[N]`` importance weights.
+    Returns:
+      ``(Σ_k mean_i w_i (Q_k,i − y_i)² [], td_error [K, N])``.
+    """
+    chex.assert_rank(q, 2)
+    losses, td = jax.vmap(lambda qk: critic_loss(qk, target, weights))(q)
+    return jnp.sum(losses), td
+
+
 def actor_loss(q_of_policy: jax.Array) -> jax.Array:
     """Eq. 3.6 as a loss: ``−mean_i Q(s_i, μ(s_i))``; its gradient is ``−∇_a Q ∇_θ μ`` averaged."""
     chex.assert_rank(q_of_policy, 1)
@@ -66,3 +102,14 @@ def smooth_target_action(key: jax.Array, action: jax.Array, noise: float, noise_
     """
     xi = noise * jax.random.normal(key, action.shape, action.dtype)
     return jnp.clip(action + jnp.clip(xi, -noise_clip, noise_clip), -1.0, 1.0)
+
+
+def linear_noise_factor(iteration: jax.Array, iterations: int, end_factor: float, decay_fraction: float) -> jax.Array:
+    """Exploration-noise multiplier ``1 + (end − 1) · min(1, i / (decay_fraction · iterations))``: ``[] -> []``.
+
+    Falls linearly from 1 at iteration 0 to ``end_factor`` after ``decay_fraction`` of the run's
+    ``iterations`` and stays there.
+    """
+    horizon = max(decay_fraction * iterations, 1e-9)
+    frac = jnp.minimum(jnp.asarray(iteration, jnp.float32) / horizon, 1.0)
+    return 1.0 + (end_factor - 1.0) * frac

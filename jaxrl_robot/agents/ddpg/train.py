@@ -16,7 +16,10 @@ One update (Algorithm 1, lines 9–17): sample a mini-batch (uniformly, or prior
 importance weights w); critic step on ``mean w (Q(s, a) − y)²`` with
 ``y = r + γ (1 − d) Q'(s', μ'(s'))`` where ``d`` marks termination only (a time-limit
 truncation bootstraps); actor step on ``−mean Q(s, μ(s))``; soft target updates with ε;
-with PER, new priorities ``|y − Q| + ε`` and β annealing.
+with PER, new priorities ``|y − Q| + ε`` and β annealing.  Options: twin critics with the
+clipped double-Q target ``min(Q1', Q2')`` (``twin_critics``), actor and target updates every
+``policy_delay`` critic updates, and a linear decay of the exploration noise
+(``noise_end_factor``, ``noise_decay_fraction``).
 
 A failing step (termination without success) is stored with reward ``r + γ·failure_value``
 and ``d = 1``, so its target is that of an absorbing failure state of value ``failure_value``.
@@ -39,7 +42,16 @@ from flax import struct
 from envs_mjx.base import EpisodeWrapper, wrap_for_training
 from envs_mjx.config import ConfigError
 from jaxrl_robot.agents.ddpg.config import DDPGConfig
-from jaxrl_robot.agents.ddpg.losses import actor_loss, critic_loss, smooth_target_action, soft_update, td_target
+from jaxrl_robot.agents.ddpg.losses import (
+    actor_loss,
+    clipped_double_q,
+    critic_loss,
+    linear_noise_factor,
+    smooth_target_action,
+    soft_update,
+    td_target,
+    twin_critic_loss,
+)
 from jaxrl_robot.agents.ddpg.networks import DDPGActor, DDPGCritic
 from jaxrl_robot.networks import init_running_stats, normalize, update_running_stats
 from jaxrl_robot.noise import Noise, NoiseState, make_noise
@@ -62,7 +74,8 @@ class DDPGState:
     """Everything a DDPG run needs to continue exactly.
 
     Attributes:
-      actor_params, critic_params: online network parameters θ^μ, θ^Q.
+      actor_params, critic_params: online network parameters θ^μ, θ^Q (with ``twin_critics``
+        the two critics' parameters stacked on a leading axis of size 2).
       target_actor_params, target_critic_params: target parameters θ^μ', θ^Q'.
       actor_opt, critic_opt: Adam states.
       replay: uniform or prioritised replay state (stored transitions, sum-tree, β).
@@ -191,12 +204,33 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
         """``μ(x)`` of an already normalised input ``x [..., O]``."""
         return actor.apply(params, obs)
 
+    decay_noise = config.noise_end_factor < 1.0
+
     def explore(
-        key: jax.Array, params: Any, stats: RunningStats, obs: jax.Array, nstate: NoiseState
+        key: jax.Array, params: Any, stats: RunningStats, obs: jax.Array, nstate: NoiseState, factor: jax.Array
     ) -> tuple[jax.Array, NoiseState]:
-        """``a = clip(μ(s) + ω, -1, 1)`` (Eq. 3.7) for every lane: raw ``[B, O] -> [B, A]``."""
+        """``a = clip(μ(s) + f·ω, -1, 1)`` (Eq. 3.7; ``f`` the noise factor, 1 without a schedule)
+        for every lane: raw ``[B, O] -> [B, A]``."""
         eps, nstate = jax.vmap(noise.sample)(jax.random.split(key, obs.shape[0]), nstate)
+        if decay_noise:
+            eps = factor * eps
         return jnp.clip(act(params, norm(stats, obs)) + eps, -1.0, 1.0), nstate
+
+    def noise_factor(iteration: jax.Array) -> jax.Array:
+        """The exploration-noise multiplier at ``iteration`` (:func:`linear_noise_factor`)."""
+        return linear_noise_factor(iteration, config.iterations, config.noise_end_factor, config.noise_decay_fraction)
+
+    def q_values(params: Any, obs: jax.Array, action: jax.Array) -> jax.Array:
+        """Every critic's ``Q_k(s, a)``: ``([N, O], [N, A]) -> [K, N]``."""
+        if config.twin_critics:
+            return jax.vmap(critic.apply, in_axes=(0, None, None))(params, obs, action)
+        return critic.apply(params, obs, action)[None]
+
+    def q_first(params: Any, obs: jax.Array, action: jax.Array) -> jax.Array:
+        """``Q1(s, a)``, the critic the actor maximises: ``([N, O], [N, A]) -> [N]``."""
+        if config.twin_critics:
+            return critic.apply(jax.tree.map(lambda x: x[0], params), obs, action)
+        return critic.apply(params, obs, action)
 
     def fresh_noise() -> NoiseState:
         return jax.vmap(lambda _: noise.init())(jnp.arange(B))
@@ -207,7 +241,10 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
         dummy_obs = jnp.zeros((1, obs_size), jnp.float32)
         dummy_act = jnp.zeros((1, action_size), jnp.float32)
         actor_params = actor.init(k_actor, dummy_obs)
-        critic_params = critic.init(k_critic, dummy_obs, dummy_act)
+        if config.twin_critics:
+            critic_params = jax.vmap(lambda k: critic.init(k, dummy_obs, dummy_act))(jax.random.split(k_critic, 2))
+        else:
+            critic_params = critic.init(k_critic, dummy_obs, dummy_act)
         example = Transition(
             obs=jnp.zeros((obs_size,), jnp.float32),
             action=jnp.zeros((action_size,), jnp.float32),
@@ -234,7 +271,9 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
         )
 
     # ---- acting: 'episodes' schedule -----------------------------------------------------
-    def run_episodes(key: jax.Array, params: Any, stats: RunningStats) -> tuple[State, Transition, jax.Array, dict]:
+    def run_episodes(
+        key: jax.Array, params: Any, stats: RunningStats, factor: jax.Array
+    ) -> tuple[State, Transition, jax.Array, dict]:
         """Run B whole episodes; returns (final state, Transition [T*B*C], mask [T*B*C], episode sums)."""
         k_reset, k_steps, k_her = jax.random.split(key, 3)
         state0 = jax.vmap(lane_env.reset)(jax.random.split(k_reset, B))
@@ -242,7 +281,7 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
 
         def body(carry, k):
             s, nstate, finished = carry
-            a, nstate = explore(k, params, stats, s.obs, nstate)
+            a, nstate = explore(k, params, stats, s.obs, nstate, factor)
             ns = jax.vmap(lane_env.step)(s, a)
             done = ns.done.astype(jnp.float32)
             term = done * (1.0 - ns.info["truncation"].astype(jnp.float32))
@@ -287,12 +326,12 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
         return final, flat, mask.reshape(-1), sums
 
     # ---- acting: 'steps' schedule --------------------------------------------------------
-    def run_steps(key: jax.Array, params: Any, stats: RunningStats, s: State, nstate: NoiseState):
+    def run_steps(key: jax.Array, params: Any, stats: RunningStats, s: State, nstate: NoiseState, factor: jax.Array):
         """``unroll_length`` steps of every auto-resetting lane; Transition ``[U*B]``."""
 
         def body(carry, k):
             s, nstate = carry
-            a, nstate = explore(k, params, stats, s.obs, nstate)
+            a, nstate = explore(k, params, stats, s.obs, nstate, factor)
             ns = batched_env.step(s, a)
             done = ns.done.astype(jnp.float32)
             term = done * (1.0 - ns.info["truncation"].astype(jnp.float32))
@@ -316,7 +355,10 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
         """``|δ|`` clipped to ``priority_clip`` (when > 0) for the new priorities: ``[N] -> [N]``."""
         return jnp.minimum(jnp.abs(td), config.priority_clip) if config.priority_clip > 0 else td
 
-    def learn_step(stats: RunningStats, carry: tuple, key: jax.Array) -> tuple[tuple, dict[str, jax.Array]]:
+    def learn_step(stats: RunningStats, carry: tuple, xs: tuple) -> tuple[tuple, dict[str, jax.Array]]:
+        """One update (Algorithm 1, lines 9–17); ``xs = (key, index)`` with ``index`` the run's count of
+        updates before this one (the actor and targets move when ``(index + 1) % policy_delay == 0``)."""
+        key, index = xs
         actor_p, critic_p, t_actor, t_critic, a_opt, c_opt, buf = carry
         k_sample, k_smooth = jax.random.split(key) if config.target_noise > 0 else (key, key)
         smp = replay.sample(k_sample, buf)
@@ -326,12 +368,17 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
         next_a = act(t_actor, tr.next_obs)
         if config.target_noise > 0:
             next_a = smooth_target_action(k_smooth, next_a, config.target_noise, config.target_noise_clip)
-        next_q = critic.apply(t_critic, tr.next_obs, next_a)
+        if config.twin_critics:
+            next_q = clipped_double_q(q_values(t_critic, tr.next_obs, next_a))
+        else:
+            next_q = critic.apply(t_critic, tr.next_obs, next_a)
         y = td_target(tr.reward * config.reward_scale, tr.terminated, next_q, config.gamma)
         if config.target_clip:
             y = jnp.clip(y, config.target_clip[0], config.target_clip[1])
 
         def c_loss(p):
+            if config.twin_critics:
+                return twin_critic_loss(q_values(p, tr.obs, tr.action), y, weights)
             return critic_loss(critic.apply(p, tr.obs, tr.action), y, weights)
 
         (closs, td), grads = jax.value_and_grad(c_loss, has_aux=True)(critic_p)
@@ -339,16 +386,33 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
         critic_p = optax.apply_updates(critic_p, updates)
 
         def a_loss(p):
-            q = critic.apply(critic_p, tr.obs, act(p, tr.obs))
+            q = q_first(critic_p, tr.obs, act(p, tr.obs))
             return actor_loss(q), q
 
-        (aloss, q), grads = jax.value_and_grad(a_loss, has_aux=True)(actor_p)
-        updates, a_opt = actor_tx.update(grads, a_opt, actor_p)
-        actor_p = optax.apply_updates(actor_p, updates)
-        t_actor = soft_update(t_actor, actor_p, config.tau)
-        t_critic = soft_update(t_critic, critic_p, config.tau)
+        def actor_step(args: tuple) -> tuple[tuple, jax.Array, jax.Array]:
+            """Actor step on ``−mean Q1(s, μ(s))`` and soft target updates."""
+            actor_p, t_actor, t_critic, a_opt = args
+            (aloss, q), grads = jax.value_and_grad(a_loss, has_aux=True)(actor_p)
+            updates, a_opt = actor_tx.update(grads, a_opt, actor_p)
+            actor_p = optax.apply_updates(actor_p, updates)
+            t_actor = soft_update(t_actor, actor_p, config.tau)
+            t_critic = soft_update(t_critic, critic_p, config.tau)
+            return (actor_p, t_actor, t_critic, a_opt), aloss, q
+
+        def hold(args: tuple) -> tuple[tuple, jax.Array, jax.Array]:
+            """No actor or target step (``policy_delay``); the loss is still reported."""
+            aloss, q = a_loss(args[0])
+            return args, aloss, q
+
+        args = (actor_p, t_actor, t_critic, a_opt)
+        if config.policy_delay > 1:
+            args, aloss, q = jax.lax.cond((index + 1) % config.policy_delay == 0, actor_step, hold, args)
+        else:
+            args, aloss, q = actor_step(args)
+        actor_p, t_actor, t_critic, a_opt = args
         if config.per:
-            buf = replay.update_priorities(buf, smp.indices, priority_error(td))
+            err = jnp.mean(jnp.abs(td), axis=0) if config.twin_critics else td
+            buf = replay.update_priorities(buf, smp.indices, priority_error(err))
         out = {"critic_loss": closs, "actor_loss": aloss, "q": jnp.mean(q), "td_abs": jnp.mean(jnp.abs(td))}
         return (actor_p, critic_p, t_actor, t_critic, a_opt, c_opt, buf), out
 
@@ -358,7 +422,8 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
                  state.actor_opt, state.critic_opt, state.replay)
 
         def run(c):
-            c, out = jax.lax.scan(lambda c_, k: learn_step(state.obs_stats, c_, k), c, jax.random.split(key, n))
+            xs = (jax.random.split(key, n), state.updates + jnp.arange(n, dtype=jnp.int32))
+            c, out = jax.lax.scan(lambda c_, x: learn_step(state.obs_stats, c_, x), c, xs)
             return c, jax.tree.map(jnp.sum, out), jnp.asarray(n, jnp.float32)
 
         def skip(c):
@@ -381,13 +446,14 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
     def iteration(state: DDPGState) -> tuple[DDPGState, tuple]:
         key, k_act, k_learn = jax.random.split(state.key, 3)
         if config.schedule == "episodes":
-            env_state, flat, mask, ep = run_episodes(k_act, state.actor_params, state.obs_stats)
+            env_state, flat, mask, ep = run_episodes(k_act, state.actor_params, state.obs_stats,
+                                                     noise_factor(state.iteration))
             buf = replay.add(state.replay, flat, mask=mask)
             state = state.replace(env_state=env_state, replay=buf, obs_stats=observe(state.obs_stats, flat.obs, mask))
             n_updates = config.updates_per_cycle
         else:
             env_state, nstate, flat, ep = run_steps(k_act, state.actor_params, state.obs_stats, state.env_state,
-                                                    state.noise_state)
+                                                    state.noise_state, noise_factor(state.iteration))
             state = state.replace(env_state=env_state, noise_state=nstate, replay=replay.add(state.replay, flat),
                                   obs_stats=observe(state.obs_stats, flat.obs, None))
             n_updates = config.updates_per_iteration
