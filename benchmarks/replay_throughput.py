@@ -124,11 +124,15 @@ def _run_ops(ops: dict[str, Callable], carry: Any, inner: int, repeats: int) -> 
 
 
 def bench_ours(kind: str, capacity: int, batch: int, fill: int, inner: int, repeats: int) -> dict[str, Any]:
-    """Per-operation µs of our uniform ('uniform') or prioritised ('per<branching>', e.g. 'per16') buffer."""
+    """Per-operation µs of our uniform ('uniform') or prioritised buffer: 'per<branching>' (sum tree,
+    e.g. 'per16'), 'block' (block tree, default backend) or 'block-<backend>' ('block-xla')."""
     if kind == "uniform":
         buf = make_uniform_replay(capacity, batch)
+    elif kind.startswith("block"):  # 'block' (auto backend) or 'block-<backend>'
+        backend = kind.split("-", 1)[1] if "-" in kind else "auto"
+        buf = make_prioritized_replay(capacity, batch, tree="block", backend=backend)
     else:
-        buf = make_prioritized_replay(capacity, batch, branching=int(kind[3:]))
+        buf = make_prioritized_replay(capacity, batch, tree="sum", branching=int(kind[3:]))
     items = transitions(jax.random.PRNGKey(0), batch)
     state = buf.init(jax.tree.map(lambda x: x[0], items))
     state = jax.jit(buf.add)(state, transitions(jax.random.PRNGKey(1), fill))
@@ -240,7 +244,7 @@ def ratios_for(rows: dict[str, Any]) -> dict[str, float]:
     fbx = rows.get("flashbax", {})
     out = {}
     for kind, ops in rows.items():
-        if not kind.startswith("per") or "error" in ops:
+        if not kind.startswith(("per", "block")) or "error" in ops:
             continue
         out[f"{kind} sample+update / uniform sample"] = ops["sample+update"]["us"] / uni["sample"]["us"]
         out[f"{kind} step / uniform step"] = ops["step"]["us"] / uni["step"]["us"]
@@ -298,6 +302,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--ddpg-lanes", type=int, nargs="+", default=None)
     p.add_argument("--mode", default=None, help="arm7 physics of the DDPG cycle (default: pd on GPU, else kinematic)")
     p.add_argument("--branchings", type=int, nargs="+", default=[2, 8, 16, 32], help="sum-tree branching factors")
+    p.add_argument("--blocks", nargs="*", default=["block"],
+                   help="block-tree variants: 'block' (default backend), 'block-xla', 'block-pallas'")  # fmt: skip
     p.add_argument("--out", default=RESULTS)
     args = p.parse_args(argv)
     on_gpu = jax.default_backend() != "cpu"
@@ -310,7 +316,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     }  # fmt: skip
     for batch in args.batches if args.replay else []:
         rows: dict[str, Any] = {}
-        kinds = ["uniform", *(f"per{b}" for b in args.branchings)]
+        kinds = ["uniform", *(f"per{b}" for b in args.branchings), *args.blocks]
         for kind in kinds:
             rows[kind] = bench_ours(kind, args.capacity, batch, args.fill, args.inner, args.repeats)
             print(batch, kind, {k: round(v["us"], 1) for k, v in rows[kind].items()}, f"load {os.getloadavg()[0]:.1f}",

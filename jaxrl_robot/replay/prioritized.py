@@ -26,6 +26,7 @@ Nothing is jitted here; jit the caller and donate the buffer state.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
@@ -34,7 +35,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from jaxrl_robot.replay import sum_tree
+from jaxrl_robot.replay import block_tree, sum_tree
 from jaxrl_robot.replay.uniform import empty_storage, ring_write
 
 __all__ = [
@@ -43,7 +44,10 @@ __all__ = [
     "PrioritizedSample",
     "importance_weights",
     "make_prioritized_replay",
+    "TREES",
 ]
+
+TREES = ("auto", "sum", "block")
 
 
 @struct.dataclass
@@ -52,7 +56,8 @@ class PrioritizedReplayState:
 
     Attributes:
       data: pytree of ``[capacity, ...]`` arrays.
-      tree: sum-tree over ``p_i^α``.
+      tree: sum-tree over ``p_i^α`` (a :class:`~jaxrl_robot.replay.sum_tree.SumTreeState` or a
+        :class:`~jaxrl_robot.replay.block_tree.BlockTreeState`).
       insert_pos, size: ``[] int32`` ring position and fill level.
       max_priority: ``[]`` largest raw priority ``p`` seen (new items enter with it).
       beta: ``[]`` current importance-sampling exponent β.
@@ -60,7 +65,7 @@ class PrioritizedReplayState:
     """
 
     data: Any
-    tree: sum_tree.SumTreeState
+    tree: Any
     insert_pos: jax.Array
     size: jax.Array
     max_priority: jax.Array
@@ -109,6 +114,8 @@ def make_prioritized_replay(
     beta_increment: float = 0.001,
     priority_eps: float = 1e-6,
     branching: int = 16,
+    tree: str = "auto",
+    backend: str = "auto",
 ) -> PrioritizedReplay:
     """Prioritised replay (thesis Table 3.2 defaults: α 0.6, β0 0.4, β increment 0.001).
 
@@ -121,6 +128,10 @@ def make_prioritized_replay(
       priority_eps: ε added to ``|δ|``.
       branching: sum-tree branching factor (2 = the binary tree of Fig. 3.2; 16, depth 5 at
         10^6, is the default — :mod:`jaxrl_robot.replay.sum_tree` explains the trade-off).
+      tree: ``"sum"`` (:mod:`~jaxrl_robot.replay.sum_tree`, ``branching``-ary), ``"block"``
+        (:mod:`~jaxrl_robot.replay.block_tree`, two levels, one fused kernel per sample and per
+        update on a GPU) or ``"auto"``: ``"block"`` on a GPU, else ``"sum"``.
+      backend: the block tree's backend (``"auto"``, ``"pallas"``, ``"xla"``, ``"interpret"``).
     Raises:
       ValueError: naming the field and its allowed range.
     """
@@ -132,18 +143,34 @@ def make_prioritized_replay(
         "beta_increment": (beta_increment, beta_increment >= 0.0, ">= 0"),
         "priority_eps": (priority_eps, priority_eps > 0.0, "> 0"),
         "branching": (branching, int(branching) >= 2, "an integer >= 2"),
+        "tree": (tree, tree in TREES, f"one of {TREES}"),
+        "backend": (backend, backend in block_tree.BACKENDS, f"one of {block_tree.BACKENDS}"),
     }
     for name, (value, ok, allowed) in checks.items():
         if not ok:
             raise ValueError(f"{name}={value!r} is out of range; allowed {allowed}")
     capacity, batch_size = int(capacity), int(batch_size)
+    if tree == "auto":
+        tree = "block" if jax.default_backend() == "gpu" else "sum"
+    if tree == "block":
+        new_tree = lambda: block_tree.init(capacity)  # noqa: E731
+        set_tree = functools.partial(block_tree.set, backend=backend)
+        sample_tree = functools.partial(
+            block_tree.stratified_sample_with_priorities, batch_size=batch_size, backend=backend
+        )
+        tree_total = block_tree.total
+    else:
+        new_tree = lambda: sum_tree.init(capacity, branching)  # noqa: E731
+        set_tree = sum_tree.set
+        sample_tree = functools.partial(sum_tree.stratified_sample_with_priorities, batch_size=batch_size)
+        tree_total = sum_tree.total
 
     def init(example_item: Any) -> PrioritizedReplayState:
         """Empty buffer for items shaped like ``example_item`` (one item, no batch axis)."""
         zero = jnp.zeros((), jnp.int32)
         return PrioritizedReplayState(
             data=empty_storage(example_item, capacity),
-            tree=sum_tree.init(capacity, branching),
+            tree=new_tree(),
             insert_pos=zero,
             size=zero,
             max_priority=jnp.ones((), jnp.float32),
@@ -169,13 +196,13 @@ def make_prioritized_replay(
         else:
             p = jnp.abs(priorities.astype(jnp.float32)) + priority_eps
             max_priority = jnp.maximum(state.max_priority, jnp.max(jnp.where(keep, p, 0.0)))
-        tree = sum_tree.set(state.tree, slots, p**alpha, mask=keep, unique_indices=True)  # fresh ring slots
+        tree = set_tree(state.tree, slots, p**alpha, mask=keep, unique_indices=True)  # fresh ring slots
         return state.replace(data=data, tree=tree, insert_pos=pos, size=size, max_priority=max_priority)
 
     def sample(key: jax.Array, state: PrioritizedReplayState) -> PrioritizedSample:
         """Stratified prioritised mini-batch with probabilities and IS weights at the current β."""
-        indices, priorities = sum_tree.stratified_sample_with_priorities(key, state.tree, batch_size)
-        probs = priorities / sum_tree.total(state.tree)
+        indices, priorities = sample_tree(key, state.tree)
+        probs = priorities / tree_total(state.tree)
         weights = importance_weights(probs, state.size, state.beta)
         experience = jax.tree.map(lambda d: d[indices], state.data)
         return PrioritizedSample(experience=experience, indices=indices, probabilities=probs, weights=weights)
@@ -185,7 +212,7 @@ def make_prioritized_replay(
     ) -> PrioritizedReplayState:
         """Set ``p_i = |δ_i| + ε`` at ``indices [B]`` (repeats: last wins) and anneal β."""
         p = jnp.abs(td_errors.astype(jnp.float32)) + priority_eps
-        tree = sum_tree.set(state.tree, indices, p**alpha)
+        tree = set_tree(state.tree, indices, p**alpha)
         return state.replace(
             tree=tree,
             max_priority=jnp.maximum(state.max_priority, jnp.max(p)),

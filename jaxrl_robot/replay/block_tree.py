@@ -1,0 +1,389 @@
+"""A two-level sum-tree for accelerators: leaf blocks and their sums, searched in fused kernels.
+
+The tree of :mod:`jaxrl_robot.replay.sum_tree` has depth ``⌈log_b N⌉`` and costs a few XLA
+kernels per level for a sample and for an update.  This one has depth 2 and is built so
+that a whole stratified sample, and a whole priority update, is **one kernel each** on a GPU:
+
+* ``leaf_values [K·S]``: the priorities, in ``K`` blocks of ``S`` leaves (``S`` and ``K``
+  powers of two, ``S ≈ √N``; at ``N = 10^6``, ``S = K = 1024``);
+* ``block_sums [K]``: the sum of each block (the level below the root); the root total is
+  their sum.
+
+Sampling ``q ∈ [0, p_total)`` descends as in Fig. 3.2, with the sums of a node's children
+taken left to right on the fly: the block is the first ``k`` whose running sum
+``Σ_{k' ≤ k} block_sums[k']`` exceeds ``q`` (among blocks with a positive sum), then inside
+the block the first leaf whose running sum exceeds the remainder (among positive leaves).
+A query that rounding pushed to or past a total lands on the last positive block (leaf).
+
+An update writes the leaves and then recomputes each touched block's sum **from its
+leaves** (a fresh sum of ``S`` values, never an added delta), so the stored sums are a
+function of the current leaves only: nothing drifts over millions of updates, a block of
+zeros sums to exactly 0 and so is never entered, and zero leaves are never chosen inside a
+block.  Repeated indices in one batch follow sequential semantics (the last occurrence
+wins).
+
+Backends (``backend=``):
+
+* ``"pallas"``: two Pallas (Triton) kernels.  Sampling runs ``⌈m / G⌉`` programs of ``G``
+  queries; each computes the running sums of the ``K`` block sums and of its queries' leaf
+  rows in registers.  An update runs one program per batch row; the first row of each touched
+  block owns the block: it writes that block's leaves (last occurrence of each index),
+  synchronises its threads and sums the block, so no two programs touch one block.
+* ``"xla"``: the same arithmetic as ``jnp`` ops (CPU, and the reference the kernels are tested
+  against).
+* ``"interpret"``: the Pallas kernels run by the Pallas interpreter (tests on the CPU).
+* ``"auto"`` (default): ``"pallas"`` on a GPU, else ``"xla"``.
+
+All functions are pure and jittable; nothing is jitted here.
+"""
+
+from __future__ import annotations
+
+import math
+
+import chex
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+__all__ = [
+    "BACKENDS",
+    "BlockTreeState",
+    "find",
+    "get",
+    "init",
+    "probabilities",
+    "rebuild",
+    "resolve_backend",
+    "set",
+    "stratified_sample_with_priorities",
+    "total",
+]
+
+BACKENDS = ("auto", "pallas", "xla", "interpret")
+GROUP = 8
+"""Queries per program of the sampling kernel."""
+KERNEL_BATCH_MAX = 1024
+"""Largest update batch the update kernel takes (each program reads the whole batch); larger
+batches (a replay's ``add`` of many episodes) take the XLA path."""
+PAIRWISE_MAX = 1024
+"""Largest batch whose repeated indices are found by an all-pairs compare (else a stable sort)."""
+
+
+@struct.dataclass
+class BlockTreeState:
+    """Two-level sum-tree arrays.
+
+    Attributes:
+      leaf_values: ``[K · S]`` priorities (slots ``>= capacity`` stay 0).
+      block_sums: ``[K]`` sum of each block of ``S`` leaves.
+      capacity: number of usable leaves (static).
+      block_size: ``S`` (static, a power of two).
+    """
+
+    leaf_values: jax.Array
+    block_sums: jax.Array
+    capacity: int = struct.field(pytree_node=False)
+    block_size: int = struct.field(pytree_node=False)
+
+    @property
+    def num_blocks(self) -> int:
+        return self.block_sums.shape[0]
+
+    @property
+    def leaves(self) -> jax.Array:
+        """``[capacity]`` leaf priorities."""
+        return self.leaf_values[: self.capacity]
+
+
+def _pow2_at_least(n: int) -> int:
+    return 1 << max(0, math.ceil(math.log2(max(1, n))))
+
+
+def init(capacity: int, block_size: int | None = None, dtype: jnp.dtype = jnp.float32) -> BlockTreeState:
+    """An all-zero tree with ``capacity`` leaves in blocks of ``block_size`` (default ``≈ √capacity``, ≥ 16).
+
+    Raises:
+      ValueError: ``capacity < 1``, or ``block_size`` not a power of two ``>= 2``.
+    """
+    if int(capacity) < 1:
+        raise ValueError(f"capacity={capacity!r} must be >= 1")
+    capacity = int(capacity)
+    if block_size is None:
+        block_size = max(16, _pow2_at_least(math.isqrt(capacity - 1) + 1))
+    if int(block_size) < 2 or int(block_size) & (int(block_size) - 1):
+        raise ValueError(f"block_size={block_size!r} must be a power of two >= 2")
+    block_size = int(block_size)
+    num_blocks = _pow2_at_least(-(-capacity // block_size))
+    return BlockTreeState(
+        leaf_values=jnp.zeros((num_blocks * block_size,), dtype),
+        block_sums=jnp.zeros((num_blocks,), dtype),
+        capacity=capacity,
+        block_size=block_size,
+    )
+
+
+def resolve_backend(backend: str) -> str:
+    """``"auto"`` -> ``"pallas"`` on a GPU, else ``"xla"``; other names checked against :data:`BACKENDS`."""
+    if backend not in BACKENDS:
+        raise ValueError(f"backend={backend!r} is not one of {BACKENDS}")
+    if backend == "auto":
+        return "pallas" if jax.default_backend() == "gpu" else "xla"
+    return backend
+
+
+def total(state: BlockTreeState) -> jax.Array:
+    """The root: sum of all priorities, ``[]``."""
+    return jnp.sum(state.block_sums)
+
+
+def get(state: BlockTreeState, indices: jax.Array) -> jax.Array:
+    """Leaf priorities at ``indices [B]`` -> ``[B]``."""
+    return state.leaf_values[indices]
+
+
+def probabilities(state: BlockTreeState, indices: jax.Array) -> jax.Array:
+    """Sampling probabilities ``p_i / p_total`` at ``indices [B]`` -> ``[B]``."""
+    return get(state, indices) / total(state)
+
+
+def rebuild(state: BlockTreeState) -> BlockTreeState:
+    """Recompute every block sum from the leaves (O(N))."""
+    return state.replace(block_sums=jnp.sum(state.leaf_values.reshape(-1, state.block_size), axis=1))
+
+
+# ----------------------------------------------------------------------------------------------
+# The descent, written once for arrays: used by the XLA backend and inside the sampling kernel.
+
+
+def _first_above(running: jax.Array, values: jax.Array, q: jax.Array) -> jax.Array:
+    """Index of the first positive child whose running sum exceeds ``q``, else the last positive child.
+
+    ``running, values``: ``[G, n]`` (or ``[n]`` broadcast against ``q [G]``); returns ``[G] int32``.
+    """
+    n = values.shape[-1]
+    pos = jax.lax.broadcasted_iota(jnp.int32, (1, n), 1)
+    hit = (running > q[:, None]) & (values > 0)
+    first = jnp.min(jnp.where(hit, pos, n), axis=1)
+    last = jnp.max(jnp.where(values > 0, pos, 0), axis=1)
+    return jnp.where(first >= n, last, first)
+
+
+def _pick(x: jax.Array, j: jax.Array) -> jax.Array:
+    """``x[g, j[g]]`` as a masked sum (no gather): ``[G, n], [G] -> [G]``."""
+    pos = jax.lax.broadcasted_iota(jnp.int32, (1, x.shape[-1]), 1)
+    return jnp.sum(jnp.where(pos == j[:, None], x, 0), axis=1)
+
+
+def _descend(block_sums: jax.Array, load_rows, q: jax.Array, block_size: int):
+    """The two-level descent of queries ``q [G]``: ``-> (indices [G] int32, priorities [G])``.
+
+    ``load_rows(k [G]) -> [G, S]`` returns the leaf rows of blocks ``k``.
+    """
+    g = q.shape[0]
+    csum = jnp.cumsum(block_sums)[None, :]  # [1, K]
+    bs = jnp.broadcast_to(block_sums[None, :], (g, block_sums.shape[0]))
+    k = _first_above(jnp.broadcast_to(csum, bs.shape), bs, q)
+    before = _pick(jnp.broadcast_to(csum, bs.shape) - bs, k)  # running sum of the blocks before k
+    rest = jnp.maximum(q - before, 0)
+    rows = load_rows(k)  # [G, S]
+    j = _first_above(jnp.cumsum(rows, axis=1), rows, rest)
+    return k * block_size + j, _pick(rows, j)
+
+
+def _queries(u: jax.Array, tot: jax.Array, first: jax.Array | int, m: int) -> jax.Array:
+    """Stratified queries ``(first + i + u_i) · total / m`` for ``u [G]``."""
+    strata = first + jax.lax.broadcasted_iota(jnp.int32, u.shape, 0)
+    return (strata.astype(u.dtype) + u) * (tot / m)
+
+
+# ----------------------------------------------------------------------------------------------
+# Sampling
+
+
+def _sample_xla(u: jax.Array, state: BlockTreeState) -> tuple[jax.Array, jax.Array]:
+    m = u.shape[0]
+    q = _queries(u, total(state), 0, m)
+    rows_of = state.leaf_values.reshape(-1, state.block_size)
+    return _descend(state.block_sums, lambda k: rows_of[k], q, state.block_size)
+
+
+def _sample_pallas(u: jax.Array, state: BlockTreeState, interpret: bool) -> tuple[jax.Array, jax.Array]:
+    from jax.experimental import pallas as pl
+
+    m = u.shape[0]
+    group = min(GROUP, _pow2_at_least(m))
+    padded = -(-m // group) * group
+    u = jnp.pad(u, (0, padded - m))
+    size, dtype = state.block_size, state.leaf_values.dtype
+
+    def kernel(u_ref, bs_ref, leaves_ref, idx_ref, prio_ref):
+        start = pl.program_id(0) * group
+        block_sums = bs_ref[...]
+        q = _queries(u_ref[pl.ds(start, group)], jnp.sum(block_sums), start, m)
+        cols = jax.lax.broadcasted_iota(jnp.int32, (1, size), 1)
+        idx, prio = _descend(block_sums, lambda k: leaves_ref[k[:, None] * size + cols], q, size)
+        idx_ref[pl.ds(start, group)] = idx
+        prio_ref[pl.ds(start, group)] = prio
+
+    idx, prio = pl.pallas_call(
+        kernel,
+        out_shape=(jax.ShapeDtypeStruct((padded,), jnp.int32), jax.ShapeDtypeStruct((padded,), dtype)),
+        grid=(padded // group,),
+        interpret=interpret,
+        name="block_tree_sample",
+    )(u, state.block_sums, state.leaf_values)
+    return idx[:m], prio[:m]
+
+
+def stratified_sample_with_priorities(
+    key: jax.Array, state: BlockTreeState, batch_size: int, backend: str = "auto"
+) -> tuple[jax.Array, jax.Array]:
+    """Stratified sampling (Fig. 3.2): one draw in each of ``batch_size`` equal segments of ``[0, p_total)``.
+
+    Returns ``([batch_size] int32 leaf indices, [batch_size] their priorities)``.  With
+    ``total == 0`` (empty tree) the result is meaningless; callers sample once something is stored.
+    """
+    u = jax.random.uniform(key, (batch_size,), state.leaf_values.dtype)
+    backend = resolve_backend(backend)
+    if backend == "xla":
+        return _sample_xla(u, state)
+    return _sample_pallas(u, state, interpret=backend == "interpret")
+
+
+def find(state: BlockTreeState, queries: jax.Array) -> jax.Array:
+    """Leaves whose prefix-sum interval contains each query ``[B] -> [B] int32`` (XLA ops).
+
+    Queries at or past the total land on the last positive leaf; zero leaves are never
+    returned while ``total(state) > 0``.
+    """
+    chex.assert_rank(queries, 1)
+    rows_of = state.leaf_values.reshape(-1, state.block_size)
+    q = jnp.maximum(queries.astype(state.leaf_values.dtype), 0)
+    return _descend(state.block_sums, lambda k: rows_of[k], q, state.block_size)[0]
+
+
+# ----------------------------------------------------------------------------------------------
+# Update
+
+
+def _last_occurrence(indices: jax.Array, valid: jax.Array) -> jax.Array:
+    """``[B] bool``: valid rows with no later valid row of the same index (all-pairs compare)."""
+    n = indices.shape[0]
+    pos = jax.lax.broadcasted_iota(jnp.int32, (n, n), 0)  # row i
+    later = jax.lax.broadcasted_iota(jnp.int32, (n, n), 1) > pos  # column j after row i
+    shadowed = jnp.any((indices[None, :] == indices[:, None]) & later & valid[None, :], axis=1)
+    return valid & ~shadowed
+
+
+def _set_xla(state: BlockTreeState, indices: jax.Array, values: jax.Array, keep: jax.Array) -> BlockTreeState:
+    """Leaf scatter, then the touched blocks' sums (``[B, S]`` rows), or all of them when that is cheaper."""
+    size = state.block_size
+    leaves = state.leaf_values.at[jnp.where(keep, indices, state.leaf_values.shape[0])].set(values, mode="drop")
+    if indices.shape[0] * size >= leaves.shape[0]:
+        return rebuild(state.replace(leaf_values=leaves))
+    blocks = jnp.where(keep, indices // size, 0)
+    sums = jnp.sum(leaves.reshape(-1, size)[blocks], axis=1)
+    block_sums = state.block_sums.at[jnp.where(keep, blocks, state.num_blocks)].set(sums, mode="drop")
+    return state.replace(leaf_values=leaves, block_sums=block_sums)
+
+
+def _set_pallas(
+    state: BlockTreeState, indices: jax.Array, values: jax.Array, valid: jax.Array, keep: jax.Array | None,
+    interpret: bool,
+) -> BlockTreeState:  # fmt: skip
+    from jax.experimental import pallas as pl
+    from jax.experimental.pallas import triton as plgpu
+
+    n = indices.shape[0]
+    padded = _pow2_at_least(n)
+    pad = (0, padded - n)
+    indices, values, valid = jnp.pad(indices, pad), jnp.pad(values, pad), jnp.pad(valid, pad)
+    keep = None if keep is None else jnp.pad(keep, pad)
+    size = state.block_size
+
+    def kernel(*refs):
+        if keep is None:
+            idx_ref, val_ref, ok_ref, _, _, leaves_ref, bs_ref = refs
+        else:
+            idx_ref, val_ref, ok_ref, keep_ref, _, _, leaves_ref, bs_ref = refs
+        i = pl.program_id(0)
+        idx, ok = idx_ref[...], ok_ref[...]
+        block = idx // size
+        me = jax.lax.broadcasted_iota(jnp.int32, (padded,), 0)
+        mine = ok & (block == jnp.sum(jnp.where(me == i, block, 0)))
+        first_of_block = jnp.min(jnp.where(mine, me, padded)) == i  # this row owns its block
+
+        @pl.when(first_of_block)
+        def _():
+            write = mine & (_last_occurrence(idx, ok) if keep is None else keep_ref[...])
+            # rows not written store a written row's value at its slot: an unmasked store is the same
+            # on the GPU and in the interpreter (whose masked store writes old values back)
+            r = jnp.min(jnp.where(write, me, padded))
+            val = val_ref[...]
+            target = jnp.where(write, idx, jnp.sum(jnp.where(me == r, idx, 0)))
+            leaves_ref[target] = jnp.where(write, val, jnp.sum(jnp.where(me == r, val, 0)))
+            if not interpret:
+                plgpu.debug_barrier()  # the block's writes are visible to every thread of this program
+            k = jnp.sum(jnp.where(me == i, block, 0))
+            cols = jax.lax.broadcasted_iota(jnp.int32, (size,), 0)
+            row = plgpu.load(leaves_ref.at[k * size + cols], cache_modifier=None if interpret else ".cg")  # from L2
+            bs_ref[pl.ds(k, 1)] = jnp.sum(row, keepdims=True)
+
+    args = (indices, values, valid) + (() if keep is None else (keep,)) + (state.leaf_values, state.block_sums)
+    leaves, block_sums = pl.pallas_call(
+        kernel,
+        out_shape=(jax.ShapeDtypeStruct(state.leaf_values.shape, state.leaf_values.dtype),
+                   jax.ShapeDtypeStruct(state.block_sums.shape, state.block_sums.dtype)),  # fmt: skip
+        grid=(padded,),
+        input_output_aliases={len(args) - 2: 0, len(args) - 1: 1},
+        interpret=interpret,
+        name="block_tree_set",
+    )(*args)
+    return state.replace(leaf_values=leaves, block_sums=block_sums)
+
+
+def set(
+    state: BlockTreeState,
+    indices: jax.Array,
+    values: jax.Array,
+    mask: jax.Array | None = None,
+    unique_indices: bool = False,
+    backend: str = "auto",
+) -> BlockTreeState:
+    """Set leaf priorities and recompute the sums of the touched blocks from their leaves.
+
+    Args:
+      state: the tree.
+      indices: ``[B]`` int leaf indices in ``[0, capacity)``; repeats allowed (last wins).
+      values: ``[B]`` new priorities (negative values are stored as 0).
+      mask: optional ``[B]`` bool; entries with False are ignored.
+      unique_indices: static promise that the masked-in ``indices`` are distinct.
+      backend: see the module docstring.
+    Returns:
+      The new tree.
+    """
+    chex.assert_rank([indices, values], 1)
+    chex.assert_equal_shape([indices, values])
+    backend = resolve_backend(backend)
+    valid = jnp.ones(indices.shape, bool) if mask is None else mask
+    indices = indices.astype(jnp.int32)
+    values = jnp.maximum(values.astype(state.leaf_values.dtype), 0)
+    n = indices.shape[0]
+    if backend == "xla" or n > KERNEL_BATCH_MAX:
+        if unique_indices:
+            keep = valid
+        else:
+            keep = _last_occurrence(indices, valid) if n <= PAIRWISE_MAX else _last_occurrence_sorted(indices, valid)
+        return _set_xla(state, indices, values, keep)
+    keep = valid if unique_indices else None  # None: found inside the kernel
+    return _set_pallas(state, indices, values, valid, keep, interpret=backend == "interpret")
+
+
+def _last_occurrence_sorted(indices: jax.Array, valid: jax.Array) -> jax.Array:
+    """:func:`_last_occurrence` by a stable sort, O(B log B), for large batches."""
+    key = jnp.where(valid, indices, -1)
+    order = jnp.argsort(key, stable=True)
+    s = key[order]
+    last_sorted = jnp.concatenate([s[1:] != s[:-1], jnp.ones((1,), bool)])
+    return jnp.zeros(indices.shape, bool).at[order].set(last_sorted) & valid
