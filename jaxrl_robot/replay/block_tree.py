@@ -272,8 +272,8 @@ def _last_occurrence(indices: jax.Array, valid: jax.Array) -> jax.Array:
     n = indices.shape[0]
     pos = jax.lax.broadcasted_iota(jnp.int32, (n, n), 0)  # row i
     later = jax.lax.broadcasted_iota(jnp.int32, (n, n), 1) > pos  # column j after row i
-    shadowed = jnp.any((indices[None, :] == indices[:, None]) & later & valid[None, :], axis=1)
-    return valid & ~shadowed
+    shadowed = (indices[None, :] == indices[:, None]) & later & valid[None, :]
+    return valid & (jnp.max(shadowed.astype(jnp.int32), axis=1) == 0)  # an int max: Triton has no reduce_or
 
 
 def _set_xla(state: BlockTreeState, indices: jax.Array, values: jax.Array, keep: jax.Array) -> BlockTreeState:
@@ -327,7 +327,7 @@ def _set_pallas(
                 plgpu.debug_barrier()  # the block's writes are visible to every thread of this program
             k = jnp.sum(jnp.where(me == i, block, 0))
             cols = jax.lax.broadcasted_iota(jnp.int32, (size,), 0)
-            row = plgpu.load(leaves_ref.at[k * size + cols], cache_modifier=None if interpret else ".cg")  # from L2
+            row = plgpu.load(leaves_ref.at[k * size + cols], cache_modifier=None if interpret else "cg")  # from L2
             bs_ref[pl.ds(k, 1)] = jnp.sum(row, keepdims=True)
 
     args = (indices, values, valid) + (() if keep is None else (keep,)) + (state.leaf_values, state.block_sums)
