@@ -327,7 +327,7 @@ def _set_pallas(
                 plgpu.debug_barrier()  # the block's writes are visible to every thread of this program
             k = jnp.sum(jnp.where(me == i, block, 0))
             cols = jax.lax.broadcasted_iota(jnp.int32, (size,), 0)
-            row = plgpu.load(leaves_ref.at[k * size + cols], cache_modifier=None if interpret else "cg")  # from L2
+            row = plgpu.load(leaves_ref.at[k * size + cols], volatile=True)  # not from a stale L1 line
             bs_ref[pl.ds(k, 1)] = jnp.sum(row, keepdims=True)
 
     args = (indices, values, valid) + (() if keep is None else (keep,)) + (state.leaf_values, state.block_sums)
