@@ -165,6 +165,31 @@ def test_replay_marks_termination_only(step_size, noise, expected):
     assert float(metrics["updates"]) == 0.0 and float(metrics["critic_loss"]) == 0.0
 
 
+def test_termination_metric_bootstraps_the_other_endings():
+    """With ``termination_metric="success"`` a failing step of the toy env (leaving the region, success
+    0) no longer terminates: d = 0 and no failure value (compare the test above: d = 1, −10)."""
+    env = ToyGoalEnv(max_steps=3, step_size=2.0, threshold=1e-6)
+    trainer = make_trainer(_tiny(episode_length=3, noise_scale=(10.0,), failure_value=-10.0,
+                                 termination_metric="success"), env)
+    state, _ = jax.jit(trainer.update)(trainer.init(jax.random.PRNGKey(0)))
+    size = int(state.replay.size)
+    assert size == 2
+    np.testing.assert_array_equal(state.replay.data.terminated[:size], 0.0)
+    np.testing.assert_allclose(state.replay.data.reward[:size], -1.0)
+    with pytest.raises(ConfigError, match="termination_metric='ended' is not a metric of this env; choose from"):
+        make_trainer(_tiny(episode_length=3, termination_metric="ended"), env)
+
+
+def test_reward_shift_enters_the_critic_target():
+    """First update's critic loss with near-zero initial Q (last layers ±3e-3): sparse reward −1 on
+    every stored step, so mean (Q − y)² ≈ (−1 + shift)² = 36 with shift −5 (1 if the shift were lost)."""
+    env = ToyGoalEnv(max_steps=10, step_size=1e-4, threshold=1e-6)
+    trainer = make_trainer(_tiny(episode_length=10, updates_per_cycle=1, reward_shift=-5.0, actor_hidden=(),
+                                 critic_hidden=()), env)
+    _, metrics = jax.jit(trainer.update)(trainer.init(jax.random.PRNGKey(0)))
+    np.testing.assert_allclose(float(metrics["critic_loss"]), 36.0, rtol=0.02)
+
+
 def test_config_errors_name_the_field():
     with pytest.raises(ConfigError, match=r"policy_delay=0 is out of range; allowed \[1, inf\]"):
         _tiny(policy_delay=0).validate()
@@ -172,6 +197,8 @@ def test_config_errors_name_the_field():
         _tiny(noise_end_factor=1.5).validate()
     with pytest.raises(ConfigError, match=r"noise_decay_fraction=0 is out of range; allowed \(0, 1\]"):
         _tiny(noise_decay_fraction=0).validate()
+    with pytest.raises(ConfigError, match="reward_shift=nan must be a finite number"):
+        _tiny(reward_shift=float("nan")).validate()
     with pytest.raises(ConfigError, match="her='best' is not valid"):
         _tiny(her="best").validate()
     with pytest.raises(ConfigError, match="her='future' needs whole episodes"):

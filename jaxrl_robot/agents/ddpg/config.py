@@ -135,6 +135,16 @@ class DDPGConfig:
     falling from 1 to ``noise_end_factor`` (in [0, 1]) and then held.  1: constant noise."""
     noise_decay_fraction: float = 1.0
     """Fraction of the run's iterations over which the noise factor falls (in (0, 1])."""
+    reward_shift: float = 0.0
+    """Added to every (scaled) reward in the critic target, ``y = reward_scale·r + reward_shift +
+    γ (1 − d) Q'``.  −1 turns a reward in [0, 1] (Eq. 3.22–3.23) into a cost ``−(1 − r)``, so Q is the
+    small negative cost-to-go instead of a value near ``1/(1 − γ)``, and the critic's absolute error
+    is small next to the action-dependent part.  Only sensible with ``termination_metric`` and a
+    ``failure_value`` of at most ``reward_shift/(1 − γ)``; otherwise an ending is a shortcut."""
+    termination_metric: str = ""
+    """Name of a per-step 0/1 metric of the env marking the real terminations (tracking envs:
+    ``"early_termination"``); any other episode end (the reference running out) is then treated as
+    a time limit and bootstrapped (d = 0).  Empty: every end that is not a truncation terminates."""
 
     @property
     def iterations(self) -> int:
@@ -190,6 +200,10 @@ class DDPGConfig:
             raise ConfigError(f"policy_delay={self.policy_delay!r} must be an integer")
         check_range("noise_end_factor", self.noise_end_factor, 0.0, 1.0)
         check_range("noise_decay_fraction", self.noise_decay_fraction, 0.0, 1.0, lo_open=True)
+        if self.reward_shift != self.reward_shift or abs(self.reward_shift) == float("inf"):
+            raise ConfigError(f"reward_shift={self.reward_shift!r} must be a finite number")
+        if self.termination_metric and not self.termination_metric.isidentifier():
+            raise ConfigError(f"termination_metric={self.termination_metric!r} must be empty or a metric name")
         return self
 
     def replace(self, **changes) -> DDPGConfig:

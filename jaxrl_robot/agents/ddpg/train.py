@@ -19,10 +19,12 @@ truncation bootstraps); actor step on ``−mean Q(s, μ(s))``; soft target updat
 with PER, new priorities ``|y − Q| + ε`` and β annealing.  Options: twin critics with the
 clipped double-Q target ``min(Q1', Q2')`` (``twin_critics``), actor and target updates every
 ``policy_delay`` critic updates, and a linear decay of the exploration noise
-(``noise_end_factor``, ``noise_decay_fraction``).
+(``noise_end_factor``, ``noise_decay_fraction``), a reward shift in the target (``reward_shift``)
+and bootstrapping every episode end but those a metric marks (``termination_metric``).
 
-A failing step (termination without success) is stored with reward ``r + γ·failure_value``
-and ``d = 1``, so its target is that of an absorbing failure state of value ``failure_value``.
+A failing step (termination without success; with ``termination_metric``, only the ends that
+metric marks) is stored with reward ``r + γ·failure_value`` and ``d = 1``, so its target is that
+of an absorbing failure state of value ``failure_value``.
 
 The replay buffer lives in the training state on the device, so a checkpoint of the state
 resumes a run exactly.
@@ -161,6 +163,13 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
         missing = [name for name in GOAL_API if not hasattr(env, name)]
         if missing:
             raise ConfigError(f"her={config.her!r} needs the goal-conditioned env API; env lacks {', '.join(missing)}")
+    if config.termination_metric:
+        metrics = jax.eval_shape(env.reset, jax.random.PRNGKey(0)).metrics
+        if config.termination_metric not in metrics:
+            raise ConfigError(
+                f"termination_metric={config.termination_metric!r} is not a metric of this env; "
+                f"choose from {sorted(metrics)}"
+            )
     episode_length = int(config.episode_length or getattr(env, "episode_length", 0) or 0)
     if episode_length < 1:
         raise ConfigError("episode_length=0: this env has no default episode_length; set episode_length >= 1")
@@ -232,6 +241,14 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
             return critic.apply(jax.tree.map(lambda x: x[0], params), obs, action)
         return critic.apply(params, obs, action)
 
+    def terminal(ns: State) -> jax.Array:
+        """``d [B]``: 1 where the step ended the episode other than by the time limit (and, with
+        ``termination_metric``, where that metric is set; other ends bootstrap)."""
+        term = ns.done.astype(jnp.float32) * (1.0 - ns.info["truncation"].astype(jnp.float32))
+        if config.termination_metric:
+            term = term * ns.metrics[config.termination_metric].astype(jnp.float32)
+        return term
+
     def fresh_noise() -> NoiseState:
         return jax.vmap(lambda _: noise.init())(jnp.arange(B))
 
@@ -284,7 +301,7 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
             a, nstate = explore(k, params, stats, s.obs, nstate, factor)
             ns = jax.vmap(lane_env.step)(s, a)
             done = ns.done.astype(jnp.float32)
-            term = done * (1.0 - ns.info["truncation"].astype(jnp.float32))
+            term = terminal(ns)
             success = ns.metrics.get("success", jnp.zeros_like(done)).astype(jnp.float32)
             alive = 1.0 - finished
             row = {
@@ -334,7 +351,7 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
             a, nstate = explore(k, params, stats, s.obs, nstate, factor)
             ns = batched_env.step(s, a)
             done = ns.done.astype(jnp.float32)
-            term = done * (1.0 - ns.info["truncation"].astype(jnp.float32))
+            term = terminal(ns)
             success = ns.metrics.get("success", jnp.zeros_like(done)).astype(jnp.float32)
             reward = ns.reward + fail_bonus * term * (1.0 - success)
             tr = Transition(s.obs, a, reward, ns.info["final_obs"], term)
@@ -372,7 +389,7 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
             next_q = clipped_double_q(q_values(t_critic, tr.next_obs, next_a))
         else:
             next_q = critic.apply(t_critic, tr.next_obs, next_a)
-        y = td_target(tr.reward * config.reward_scale, tr.terminated, next_q, config.gamma)
+        y = td_target(tr.reward * config.reward_scale + config.reward_shift, tr.terminated, next_q, config.gamma)
         if config.target_clip:
             y = jnp.clip(y, config.target_clip[0], config.target_clip[1])
 
