@@ -262,6 +262,9 @@ def to_markdown(result: dict[str, Any]) -> str:
              "`sample+update` = the `sample` and `update` columns added (each timed in its own scan); "
              "`step` = sample → stand-in TD errors → priority write-back fused in one scan body, as DDPG "
              "runs it (uniform: the same without the write-back).", ""]  # fmt: skip
+    if "empty_scan_us" in result:
+        lines += [f"An empty scan iteration (a counter, no replay work) costs {result['empty_scan_us']:.2f} µs: "
+                  "every figure includes it once.", ""]  # fmt: skip
     for batch, rows in result["ops"].items():
         header = "| buffer | " + " | ".join(COLUMNS) + " |"
         lines += [f"## batch {batch}", "", header, "|---" * (len(COLUMNS) + 1) + "|"]
@@ -314,6 +317,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "command": "python -m benchmarks.replay_throughput " + " ".join(sys.argv[1:] if argv is None else argv),
         "load_start": round(os.getloadavg()[0], 2),
     }  # fmt: skip
+    if args.replay:  # the floor under every figure: one scan iteration that does no replay work
+        _, sec, _ = _time(_scan(lambda c, i: c + i.astype(jnp.float32), args.inner), jnp.zeros(()), args.repeats)
+        result["empty_scan_us"] = sec / args.inner * 1e6
+        print("empty scan iteration", round(result["empty_scan_us"], 2), "µs", flush=True)
     for batch in args.batches if args.replay else []:
         rows: dict[str, Any] = {}
         kinds = ["uniform", *(f"per{b}" for b in args.branchings), *args.blocks]

@@ -40,6 +40,7 @@ All functions are pure and jittable; nothing is jitted here.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import chex
 import jax
@@ -288,59 +289,109 @@ def _set_xla(state: BlockTreeState, indices: jax.Array, values: jax.Array, keep:
     return state.replace(leaf_values=leaves, block_sums=block_sums)
 
 
+class PriorityRule(NamedTuple):
+    """A prioritised replay's update rule, applied inside the update kernel (static).
+
+    Values given are TD errors ``δ``; the leaf becomes ``(|δ| + eps)^alpha`` (Eq. 3.9), and the
+    replay's scalars ``[max raw priority, β]`` become ``[max(·, max_i |δ_i| + eps), min(β + beta_increment, 1)]``.
+    """
+
+    alpha: float
+    eps: float
+    beta_increment: float
+
+
+def _apply_rule(values: jax.Array, rule: PriorityRule | None) -> tuple[jax.Array, jax.Array]:
+    """``(leaf values, raw priorities)`` from the given values: ``[B] -> ([B], [B])``."""
+    if rule is None:
+        return jnp.maximum(values, 0), values
+    raw = jnp.abs(values) + rule.eps
+    return jnp.exp(rule.alpha * jnp.log(raw)), raw  # raw > 0
+
+
+def _next_scalars(scalars: jax.Array, raw: jax.Array, valid: jax.Array | None, rule: PriorityRule) -> jax.Array:
+    """``[2]`` replay scalars ``[max raw priority, β]`` after an update (see :class:`PriorityRule`)."""
+    seen = jnp.max(raw if valid is None else jnp.where(valid, raw, 0))
+    pos = jax.lax.broadcasted_iota(jnp.int32, (2,), 0)
+    return jnp.where(pos == 0, jnp.maximum(scalars, seen), jnp.minimum(scalars + rule.beta_increment, 1.0))
+
+
 def _set_pallas(
-    state: BlockTreeState, indices: jax.Array, values: jax.Array, valid: jax.Array, keep: jax.Array | None,
-    interpret: bool,
-) -> BlockTreeState:  # fmt: skip
+    state: BlockTreeState, indices: jax.Array, values: jax.Array, valid: jax.Array | None, keep: jax.Array | None,
+    interpret: bool, rule: PriorityRule | None = None, scalars: jax.Array | None = None,
+) -> tuple[BlockTreeState, jax.Array | None]:  # fmt: skip
+    """The update kernel: one program per batch row; the first valid row of each touched block owns it."""
     from jax.experimental import pallas as pl
     from jax.experimental.pallas import triton as plgpu
 
     n = indices.shape[0]
     padded = _pow2_at_least(n)
     pad = (0, padded - n)
-    indices, values, valid = jnp.pad(indices, pad), jnp.pad(values, pad), jnp.pad(valid, pad)
-    keep = None if keep is None else jnp.pad(keep, pad)
+    if padded != n:
+        indices, values = jnp.pad(indices, pad), jnp.pad(values, pad)
+        valid = jnp.pad(jnp.ones((n,), bool) if valid is None else valid, pad)
+        keep = None if keep is None else jnp.pad(keep, pad)
     size = state.block_size
+    optional = {"valid": valid, "keep": keep, "scalars": scalars}
+    names = ["indices", "values", *(k for k, v in optional.items() if v is not None), "leaves", "sums"]
 
     def kernel(*refs):
-        if keep is None:
-            idx_ref, val_ref, ok_ref, _, _, leaves_ref, bs_ref = refs
-        else:
-            idx_ref, val_ref, ok_ref, keep_ref, _, _, leaves_ref, bs_ref = refs
+        ref = dict(zip(names, refs[: len(names)], strict=True))
+        out = dict(zip(["leaves", "sums", "scalars"], refs[len(names) :], strict=False))
         i = pl.program_id(0)
-        idx, ok = idx_ref[...], ok_ref[...]
+        idx = ref["indices"][...]
+        ok = ref["valid"][...] if valid is not None else jnp.ones((padded,), bool)
+        val, raw = _apply_rule(ref["values"][...], rule)
+        if scalars is not None:
+
+            @pl.when(i == 0)
+            def _():
+                out["scalars"][...] = _next_scalars(ref["scalars"][...], raw, ok if valid is not None else None, rule)
+
         block = idx // size
         me = jax.lax.broadcasted_iota(jnp.int32, (padded,), 0)
-        mine = ok & (block == jnp.sum(jnp.where(me == i, block, 0)))
+        k = jnp.sum(jnp.where(me == i, block, 0))
+        mine = ok & (block == k)
         first_of_block = jnp.min(jnp.where(mine, me, padded)) == i  # this row owns its block
 
         @pl.when(first_of_block)
         def _():
-            write = mine & (_last_occurrence(idx, ok) if keep is None else keep_ref[...])
+            write = mine & (_last_occurrence(idx, ok) if keep is None else ref["keep"][...])
             # rows not written store a written row's value at its slot: an unmasked store is the same
             # on the GPU and in the interpreter (whose masked store writes old values back)
             r = jnp.min(jnp.where(write, me, padded))
-            val = val_ref[...]
             target = jnp.where(write, idx, jnp.sum(jnp.where(me == r, idx, 0)))
-            leaves_ref[target] = jnp.where(write, val, jnp.sum(jnp.where(me == r, val, 0)))
+            out["leaves"][target] = jnp.where(write, val, jnp.sum(jnp.where(me == r, val, 0)))
             if not interpret:
                 plgpu.debug_barrier()  # the block's writes are visible to every thread of this program
-            k = jnp.sum(jnp.where(me == i, block, 0))
             cols = jax.lax.broadcasted_iota(jnp.int32, (size,), 0)
-            row = plgpu.load(leaves_ref.at[k * size + cols], volatile=True)  # not from a stale L1 line
-            bs_ref[pl.ds(k, 1)] = jnp.sum(row, keepdims=True)
+            row = plgpu.load(out["leaves"].at[k * size + cols], volatile=True)  # not from a stale L1 line
+            out["sums"][pl.ds(k, 1)] = jnp.sum(row, keepdims=True)
 
-    args = (indices, values, valid) + (() if keep is None else (keep,)) + (state.leaf_values, state.block_sums)
-    leaves, block_sums = pl.pallas_call(
+    args = [indices, values, *(v for v in optional.values() if v is not None), state.leaf_values, state.block_sums]
+    out_shape = [jax.ShapeDtypeStruct(state.leaf_values.shape, state.leaf_values.dtype),
+                 jax.ShapeDtypeStruct(state.block_sums.shape, state.block_sums.dtype)]  # fmt: skip
+    aliases = {len(args) - 2: 0, len(args) - 1: 1}
+    if scalars is not None:
+        out_shape.append(jax.ShapeDtypeStruct(scalars.shape, scalars.dtype))
+        aliases[names.index("scalars")] = 2
+    outs = pl.pallas_call(
         kernel,
-        out_shape=(jax.ShapeDtypeStruct(state.leaf_values.shape, state.leaf_values.dtype),
-                   jax.ShapeDtypeStruct(state.block_sums.shape, state.block_sums.dtype)),  # fmt: skip
+        out_shape=tuple(out_shape),
         grid=(padded,),
-        input_output_aliases={len(args) - 2: 0, len(args) - 1: 1},
+        input_output_aliases=aliases,
         interpret=interpret,
         name="block_tree_set",
     )(*args)
-    return state.replace(leaf_values=leaves, block_sums=block_sums)
+    return state.replace(leaf_values=outs[0], block_sums=outs[1]), (outs[2] if scalars is not None else None)
+
+
+def _keep(indices: jax.Array, valid: jax.Array | None, unique_indices: bool) -> jax.Array:
+    """``[B] bool`` rows to write: valid, and the last occurrence of their index unless promised unique."""
+    ok = jnp.ones(indices.shape, bool) if valid is None else valid
+    if unique_indices:
+        return ok
+    return _last_occurrence(indices, ok) if indices.shape[0] <= PAIRWISE_MAX else _last_occurrence_sorted(indices, ok)
 
 
 def set(
@@ -363,21 +414,47 @@ def set(
     Returns:
       The new tree.
     """
+    return _update(state, indices, values, mask, unique_indices, backend)[0]
+
+
+def set_priorities(
+    state: BlockTreeState,
+    indices: jax.Array,
+    td_errors: jax.Array,
+    scalars: jax.Array,
+    rule: PriorityRule,
+    backend: str = "auto",
+) -> tuple[BlockTreeState, jax.Array]:
+    """A prioritised replay's whole update in one kernel: leaves ``(|δ| + ε)^α`` and the replay's scalars.
+
+    Args:
+      state: the tree.
+      indices: ``[B]`` sampled leaf indices (repeats: last wins).
+      td_errors: ``[B]`` TD errors ``δ``.
+      scalars: ``[2]`` float32 ``[largest raw priority seen, β]``.
+      rule: :class:`PriorityRule` (static).
+      backend: see the module docstring.
+    Returns:
+      ``(tree, [2] new scalars)``.
+    """
+    return _update(state, indices, td_errors, None, False, backend, rule, scalars)
+
+
+def _update(
+    state: BlockTreeState, indices: jax.Array, values: jax.Array, mask: jax.Array | None, unique_indices: bool,
+    backend: str, rule: PriorityRule | None = None, scalars: jax.Array | None = None,
+) -> tuple[BlockTreeState, jax.Array | None]:  # fmt: skip
     chex.assert_rank([indices, values], 1)
     chex.assert_equal_shape([indices, values])
     backend = resolve_backend(backend)
-    valid = jnp.ones(indices.shape, bool) if mask is None else mask
     indices = indices.astype(jnp.int32)
-    values = jnp.maximum(values.astype(state.leaf_values.dtype), 0)
-    n = indices.shape[0]
-    if backend == "xla" or n > KERNEL_BATCH_MAX:
-        if unique_indices:
-            keep = valid
-        else:
-            keep = _last_occurrence(indices, valid) if n <= PAIRWISE_MAX else _last_occurrence_sorted(indices, valid)
-        return _set_xla(state, indices, values, keep)
-    keep = valid if unique_indices else None  # None: found inside the kernel
-    return _set_pallas(state, indices, values, valid, keep, interpret=backend == "interpret")
+    values = values.astype(state.leaf_values.dtype)
+    if backend == "xla" or indices.shape[0] > KERNEL_BATCH_MAX:
+        leaf, raw = _apply_rule(values, rule)
+        state = _set_xla(state, indices, leaf, _keep(indices, mask, unique_indices))
+        return state, (None if rule is None else _next_scalars(scalars, raw, mask, rule))
+    keep = _keep(indices, mask, True) if unique_indices else None  # None: found inside the kernel
+    return _set_pallas(state, indices, values, mask, keep, backend == "interpret", rule, scalars)
 
 
 def _last_occurrence_sorted(indices: jax.Array, valid: jax.Array) -> jax.Array:

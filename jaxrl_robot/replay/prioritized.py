@@ -59,8 +59,9 @@ class PrioritizedReplayState:
       tree: sum-tree over ``p_i^α`` (a :class:`~jaxrl_robot.replay.sum_tree.SumTreeState` or a
         :class:`~jaxrl_robot.replay.block_tree.BlockTreeState`).
       insert_pos, size: ``[] int32`` ring position and fill level.
-      max_priority: ``[]`` largest raw priority ``p`` seen (new items enter with it).
-      beta: ``[]`` current importance-sampling exponent β.
+      scalars: ``[2]`` float32 ``[max_priority, beta]`` (one array, so that the block tree's
+        update kernel writes both): the largest raw priority ``p`` seen (new items enter with
+        it) and the current importance-sampling exponent β.
       capacity: static capacity.
     """
 
@@ -68,9 +69,18 @@ class PrioritizedReplayState:
     tree: Any
     insert_pos: jax.Array
     size: jax.Array
-    max_priority: jax.Array
-    beta: jax.Array
+    scalars: jax.Array
     capacity: int = struct.field(pytree_node=False)
+
+    @property
+    def max_priority(self) -> jax.Array:
+        """``[]`` largest raw priority seen."""
+        return self.scalars[0]
+
+    @property
+    def beta(self) -> jax.Array:
+        """``[]`` current importance-sampling exponent β."""
+        return self.scalars[1]
 
 
 class PrioritizedSample(NamedTuple):
@@ -159,6 +169,7 @@ def make_prioritized_replay(
             block_tree.stratified_sample_with_priorities, batch_size=batch_size, backend=backend
         )
         tree_total = block_tree.total
+        rule = block_tree.PriorityRule(float(alpha), float(priority_eps), float(beta_increment))
     else:
         new_tree = lambda: sum_tree.init(capacity, branching)  # noqa: E731
         set_tree = sum_tree.set
@@ -173,8 +184,7 @@ def make_prioritized_replay(
             tree=new_tree(),
             insert_pos=zero,
             size=zero,
-            max_priority=jnp.ones((), jnp.float32),
-            beta=jnp.asarray(beta0, jnp.float32),
+            scalars=jnp.asarray([1.0, beta0], jnp.float32),
             capacity=capacity,
         )
 
@@ -192,12 +202,12 @@ def make_prioritized_replay(
         data, slots, keep, pos, size = ring_write(state.data, items, state.insert_pos, state.size, capacity, mask)
         if priorities is None:
             p = jnp.full(slots.shape, state.max_priority)
-            max_priority = state.max_priority
+            scalars = state.scalars
         else:
             p = jnp.abs(priorities.astype(jnp.float32)) + priority_eps
-            max_priority = jnp.maximum(state.max_priority, jnp.max(jnp.where(keep, p, 0.0)))
+            scalars = state.scalars.at[0].max(jnp.max(jnp.where(keep, p, 0.0)))
         tree = set_tree(state.tree, slots, p**alpha, mask=keep, unique_indices=True)  # fresh ring slots
-        return state.replace(data=data, tree=tree, insert_pos=pos, size=size, max_priority=max_priority)
+        return state.replace(data=data, tree=tree, insert_pos=pos, size=size, scalars=scalars)
 
     def sample(key: jax.Array, state: PrioritizedReplayState) -> PrioritizedSample:
         """Stratified prioritised mini-batch with probabilities and IS weights at the current β."""
@@ -211,12 +221,14 @@ def make_prioritized_replay(
         state: PrioritizedReplayState, indices: jax.Array, td_errors: jax.Array
     ) -> PrioritizedReplayState:
         """Set ``p_i = |δ_i| + ε`` at ``indices [B]`` (repeats: last wins) and anneal β."""
+        if tree == "block":  # the leaves and both scalars in one kernel on a GPU
+            new_tree, scalars = block_tree.set_priorities(
+                state.tree, indices, td_errors, state.scalars, rule, backend=backend
+            )
+            return state.replace(tree=new_tree, scalars=scalars)
         p = jnp.abs(td_errors.astype(jnp.float32)) + priority_eps
-        tree = set_tree(state.tree, indices, p**alpha)
-        return state.replace(
-            tree=tree,
-            max_priority=jnp.maximum(state.max_priority, jnp.max(p)),
-            beta=jnp.minimum(state.beta + beta_increment, 1.0),
-        )
+        new_tree = sum_tree.set(state.tree, indices, p**alpha)
+        scalars = jnp.stack([jnp.maximum(state.max_priority, jnp.max(p)), jnp.minimum(state.beta + beta_increment, 1)])
+        return state.replace(tree=new_tree, scalars=scalars)
 
     return PrioritizedReplay(init=init, add=add, sample=sample, update_priorities=update_priorities)

@@ -6,7 +6,19 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from jaxrl_robot.replay import make_prioritized_replay, sum_tree
+from jaxrl_robot.replay import make_prioritized_replay
+
+# the sum tree (binary, and 16-ary: one level here), and the block tree's XLA path and its kernels (interpreted)
+TREES = {
+    "sum2": {"tree": "sum", "branching": 2},
+    "sum16": {"tree": "sum", "branching": 16},
+    "block-xla": {"tree": "block", "backend": "xla"},
+    "block-kernel": {"tree": "block", "backend": "interpret"},
+}
+
+
+def _leaves(state, indices):
+    return state.tree.leaf_values[indices]
 
 
 def _jit(replay):
@@ -24,11 +36,11 @@ def _items(lo, hi):
     return {"x": jnp.stack([i, -i], -1).astype(jnp.float32), "i": i}
 
 
-@pytest.mark.parametrize("branching", [2, 16])  # depth 3 and depth 1
-def test_sampling_frequencies_follow_priority_power_alpha(branching):
+@pytest.mark.parametrize("tree", TREES)
+def test_sampling_frequencies_follow_priority_power_alpha(tree):
     alpha = 0.6
     replay = _jit(make_prioritized_replay(capacity=8, batch_size=16, alpha=alpha, beta0=0.4, priority_eps=1e-9,
-                                          branching=branching))
+                                          **TREES[tree]))
     state = replay.add(replay.init(_item()), _items(0, 6))  # slots 6, 7 stay unwritten
     td = jnp.array([0.1, 1.0, 2.0, 0.0, 5.0, 0.5])
     state = replay.update_priorities(state, jnp.arange(6), td)
@@ -47,9 +59,10 @@ def test_sampling_frequencies_follow_priority_power_alpha(branching):
     np.testing.assert_array_equal(sample.experience["i"], sample.indices)
 
 
-def test_importance_weights_and_beta_annealing_by_hand():
+@pytest.mark.parametrize("tree", TREES)
+def test_importance_weights_and_beta_annealing_by_hand(tree):
     replay = _jit(make_prioritized_replay(capacity=4, batch_size=4, alpha=0.5, beta0=0.4, beta_increment=0.1,
-                                          priority_eps=1e-12, branching=2))
+                                          priority_eps=1e-12, **TREES[tree]))
     state = replay.add(replay.init(_item()), _items(0, 4))
     state = replay.update_priorities(state, jnp.arange(4), jnp.array([1.0, 4.0, 9.0, 16.0]))
     assert float(state.beta) == pytest.approx(0.5)
@@ -74,24 +87,25 @@ def test_importance_weights_and_beta_annealing_by_hand():
     np.testing.assert_allclose(prod, prod[0], rtol=1e-5)
 
 
-def test_new_items_enter_with_max_priority_or_given_priority():
-    replay = _jit(make_prioritized_replay(capacity=6, batch_size=2, alpha=0.5, priority_eps=1e-12, branching=2))
+@pytest.mark.parametrize("tree", TREES)
+def test_new_items_enter_with_max_priority_or_given_priority(tree):
+    replay = _jit(make_prioritized_replay(capacity=6, batch_size=2, alpha=0.5, priority_eps=1e-12, **TREES[tree]))
     state = replay.add(replay.init(_item()), _items(0, 2))
-    np.testing.assert_allclose(sum_tree.get(state.tree, jnp.arange(2)), [1.0, 1.0])  # initial max priority 1
+    np.testing.assert_allclose(_leaves(state, jnp.arange(2)), [1.0, 1.0])  # initial max priority 1
     state = replay.update_priorities(state, jnp.array([0, 1]), jnp.array([-9.0, 0.25]))
     assert float(state.max_priority) == pytest.approx(9.0)
     state = replay.add(state, _items(2, 4))
-    np.testing.assert_allclose(sum_tree.get(state.tree, jnp.arange(4)), [3.0, 0.5, 3.0, 3.0], rtol=1e-6)
+    np.testing.assert_allclose(_leaves(state, jnp.arange(4)), [3.0, 0.5, 3.0, 3.0], rtol=1e-6)
     # a worker's own priorities; masked rows are not stored and the ring packs the rest
     state = replay.add(state, _items(10, 13), priorities=jnp.array([16.0, 100.0, 4.0]),
                        mask=jnp.array([True, False, True]))
     assert int(state.size) == 6 and int(state.insert_pos) == 0
     np.testing.assert_array_equal(state.data["i"], [0, 1, 2, 3, 10, 12])
-    np.testing.assert_allclose(sum_tree.get(state.tree, jnp.arange(6))[4:], [4.0, 2.0], rtol=1e-6)
+    np.testing.assert_allclose(_leaves(state, jnp.arange(6))[4:], [4.0, 2.0], rtol=1e-6)
     assert float(state.max_priority) == pytest.approx(16.0)
     # the ring overwrites the oldest slot next, and its priority with it
     state = replay.add(state, _items(20, 21))
-    assert int(state.data["i"][0]) == 20 and float(sum_tree.get(state.tree, jnp.array([0]))[0]) == pytest.approx(4.0)
+    assert int(state.data["i"][0]) == 20 and float(_leaves(state, jnp.array([0]))[0]) == pytest.approx(4.0)
 
 
 def test_invalid_settings_name_the_field():
@@ -101,6 +115,8 @@ def test_invalid_settings_name_the_field():
         make_prioritized_replay(10, 4, beta0=-0.1)
     with pytest.raises(ValueError, match=r"branching=1 is out of range; allowed an integer >= 2"):
         make_prioritized_replay(10, 4, branching=1)
+    with pytest.raises(ValueError, match=r"tree='heap' is out of range; allowed one of \('auto', 'sum', 'block'\)"):
+        make_prioritized_replay(10, 4, tree="heap")
     replay = make_prioritized_replay(4, 2)
     with pytest.raises(ValueError, match="cannot add 5 items at once to a buffer of capacity 4"):
         replay.add(replay.init(_item()), _items(0, 5))
