@@ -64,6 +64,10 @@ __all__ = [
 BACKENDS = ("auto", "pallas", "xla", "interpret")
 GROUP = 8
 """Queries per program of the sampling kernel."""
+SAMPLE_WARPS = 4
+"""Warps per program of the sampling kernel."""
+UPDATE_WARPS = 4
+"""Warps per program of the update kernel."""
 KERNEL_BATCH_MAX = 1024
 """Largest update batch the update kernel takes (each program reads the whole batch); larger
 batches (a replay's ``add`` of many episodes) take the XLA path."""
@@ -211,6 +215,7 @@ def _sample_xla(u: jax.Array, state: BlockTreeState) -> tuple[jax.Array, jax.Arr
 
 def _sample_pallas(u: jax.Array, state: BlockTreeState, interpret: bool) -> tuple[jax.Array, jax.Array]:
     from jax.experimental import pallas as pl
+    from jax.experimental.pallas import triton as plgpu
 
     m = u.shape[0]
     group = min(GROUP, _pow2_at_least(m))
@@ -232,6 +237,7 @@ def _sample_pallas(u: jax.Array, state: BlockTreeState, interpret: bool) -> tupl
         out_shape=(jax.ShapeDtypeStruct((padded,), jnp.int32), jax.ShapeDtypeStruct((padded,), dtype)),
         grid=(padded // group,),
         interpret=interpret,
+        compiler_params=None if interpret else plgpu.CompilerParams(num_warps=SAMPLE_WARPS),
         name="block_tree_sample",
     )(u, state.block_sums, state.leaf_values)
     return idx[:m], prio[:m]
@@ -381,6 +387,7 @@ def _set_pallas(
         grid=(padded,),
         input_output_aliases=aliases,
         interpret=interpret,
+        compiler_params=None if interpret else plgpu.CompilerParams(num_warps=UPDATE_WARPS),
         name="block_tree_set",
     )(*args)
     return state.replace(leaf_values=outs[0], block_sums=outs[1]), (outs[2] if scalars is not None else None)
