@@ -62,11 +62,11 @@ __all__ = [
 ]
 
 BACKENDS = ("auto", "pallas", "xla", "interpret")
-GROUP = 8
+GROUP = 4
 """Queries per program of the sampling kernel."""
-SAMPLE_WARPS = 4
+SAMPLE_WARPS = 2
 """Warps per program of the sampling kernel."""
-UPDATE_WARPS = 4
+UPDATE_WARPS = 2
 """Warps per program of the update kernel."""
 KERNEL_BATCH_MAX = 1024
 """Largest update batch the update kernel takes (each program reads the whole batch); larger
