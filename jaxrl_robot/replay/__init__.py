@@ -2,6 +2,7 @@
 
 * :func:`make_uniform_replay` — ring buffer with uniform sampling.
 * :mod:`sum_tree` — array-backed sum-tree (batched set, stratified sampling, Fig. 3.2).
+* :mod:`block_tree` — two-level sum-tree, one fused kernel per sample and per update on a GPU.
 * :func:`make_prioritized_replay` — prioritised replay (Eq. 3.9–3.10).
 * :func:`make_her` — hindsight relabelling with ``final`` / ``future`` / ``random`` goals.
 
@@ -9,7 +10,7 @@ State is a ``flax.struct.dataclass`` with static sizes outside the pytree; nothi
 here — jit the caller and donate the buffer state.
 """
 
-from jaxrl_robot.replay import sum_tree
+from jaxrl_robot.replay import block_tree, sum_tree
 from jaxrl_robot.replay.her import STRATEGIES, GoalEnv, GoalEpisode, Her, flatten_copies, make_her, num_copies
 from jaxrl_robot.replay.prioritized import (
     PrioritizedReplay,
@@ -33,6 +34,7 @@ __all__ = [
     "UniformReplay",
     "UniformReplayState",
     "UniformSample",
+    "block_tree",
     "flatten_copies",
     "importance_weights",
     "make_her",
