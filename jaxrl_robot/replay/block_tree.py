@@ -29,10 +29,19 @@ Backends (``backend=``):
   rows in registers.  An update runs one program per batch row; the first row of each touched
   block owns the block: it writes that block's leaves (last occurrence of each index),
   synchronises its threads and sums the block, so no two programs touch one block.
-* ``"xla"``: the same arithmetic as ``jnp`` ops (CPU, and the reference the kernels are tested
-  against).
+  The update kernel takes batches up to :data:`KERNEL_BATCH_MAX` rows (larger ones, such as a
+  replay's ``add`` of many episodes, take the XLA path), and :func:`set_priorities` folds a
+  prioritised replay's whole update — ``(|δ| + ε)^α``, the largest priority, β — into it.
+* ``"xla"``: the same arithmetic as ``jnp`` ops (the reference the kernels are tested against).
+  On a CPU the ``[m, S]`` row scans make it much slower than :mod:`~jaxrl_robot.replay.sum_tree`
+  (capacity 10^6, batch 128: 783 against 26 µs per sample), so prioritised replay keeps the sum
+  tree there.
 * ``"interpret"``: the Pallas kernels run by the Pallas interpreter (tests on the CPU).
 * ``"auto"`` (default): ``"pallas"`` on a GPU, else ``"xla"``.
+
+Measured on an H200 (``benchmarks/results/gpu-nvidia_h200-replay_throughput.md``, capacity 10^6,
+batch 128): sample → TD errors → priority write-back 20.4 µs against 41.9 µs with the 16-ary sum
+tree and 10.7 µs for uniform sampling.
 
 All functions are pure and jittable; nothing is jitted here.
 """
