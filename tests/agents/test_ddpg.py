@@ -23,6 +23,7 @@ from jaxrl_robot.agents.ddpg import (
 from jaxrl_robot.checkpoint import Checkpointer
 from jaxrl_robot.evaluation import run_test_episodes, summarize_episodes
 from tests.replay.toy_goal_env import ToyGoalEnv
+from train.presets import ddpg_preset
 
 
 def _linear_params(w, b):
@@ -322,3 +323,16 @@ def test_noise_schedule_ends_at_the_greedy_action():
     gap = np.abs(np.asarray(data.action[:32]) - greedy).max(axis=1)
     assert gap[:8].min() > 1e-3  # iteration 0: factor 1
     np.testing.assert_allclose(gap[8:], 0.0, atol=1e-6)
+
+
+def test_tracking_presets_thesis_keeps_table_3_3_and_cpu_uses_the_measured_options():
+    thesis = ddpg_preset("thesis", "unicycle", 314)
+    table_3_3 = (thesis.gamma, thesis.batch_size, thesis.buffer_size, thesis.tau, thesis.noise, thesis.per)
+    assert table_3_3 == (0.9, 32, 50_000, 0.01, "ou", True)
+    assert not thesis.twin_critics and thesis.policy_delay == 1 and thesis.reward_shift == 0.0
+    assert thesis.noise_end_factor == 1.0 and thesis.termination_metric == ""
+    for env in ("unicycle", "scara"):
+        cpu = ddpg_preset("cpu", env, 314).validate()
+        assert cpu.twin_critics and cpu.policy_delay == 2 and cpu.termination_metric == "early_termination"
+        # the cost form r − 1 needs early termination valued at the worst return −1/(1 − γ)
+        np.testing.assert_allclose(cpu.failure_value, cpu.reward_shift / (1.0 - cpu.gamma))
