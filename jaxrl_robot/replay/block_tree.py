@@ -49,7 +49,7 @@ All functions are pure and jittable; nothing is jitted here.
 from __future__ import annotations
 
 import math
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import chex
 import jax
@@ -66,8 +66,6 @@ __all__ = [
     "rebuild",
     "resolve_backend",
     "set",
-    "set_priorities",
-    "stratified_sample_with_data",
     "stratified_sample_with_priorities",
     "total",
 ]
@@ -224,10 +222,7 @@ def _sample_xla(u: jax.Array, state: BlockTreeState) -> tuple[jax.Array, jax.Arr
     return _descend(state.block_sums, lambda k: rows_of[k], q, state.block_size)
 
 
-def _sample_pallas(
-    u: jax.Array, state: BlockTreeState, interpret: bool, data: Any = None
-) -> tuple[jax.Array, jax.Array, Any]:
-    """The sampling kernel; with ``data`` (a pytree of ``[capacity, ...]`` arrays) it also gathers the rows."""
+def _sample_pallas(u: jax.Array, state: BlockTreeState, interpret: bool) -> tuple[jax.Array, jax.Array]:
     from jax.experimental import pallas as pl
     from jax.experimental.pallas import triton as plgpu
 
@@ -236,11 +231,8 @@ def _sample_pallas(
     padded = -(-m // group) * group
     u = jnp.pad(u, (0, padded - m))
     size, dtype = state.block_size, state.leaf_values.dtype
-    fields, treedef = jax.tree.flatten(data)
-    widths = [math.prod(f.shape[1:]) for f in fields]
 
-    def kernel(u_ref, bs_ref, leaves_ref, *refs):
-        field_refs, (idx_ref, prio_ref, *out_refs) = refs[: len(fields)], refs[len(fields) :]
+    def kernel(u_ref, bs_ref, leaves_ref, idx_ref, prio_ref):
         start = pl.program_id(0) * group
         block_sums = bs_ref[...]
         q = _queries(u_ref[pl.ds(start, group)], jnp.sum(block_sums), start, m)
@@ -248,26 +240,16 @@ def _sample_pallas(
         idx, prio = _descend(block_sums, lambda k: leaves_ref[k[:, None] * size + cols], q, size)
         idx_ref[pl.ds(start, group)] = idx
         prio_ref[pl.ds(start, group)] = prio
-        rows = start + jax.lax.broadcasted_iota(jnp.int32, (group, 1), 0)
-        for src, dst, width in zip(field_refs, out_refs, widths, strict=True):  # row gathers, flat [N · D]
-            # columns padded to a power of two repeat the last column: same value, same slot, no mask
-            c = jnp.minimum(jax.lax.broadcasted_iota(jnp.int32, (1, _pow2_at_least(width)), 1), width - 1)
-            dst[rows * width + c] = src[idx[:, None] * width + c]
 
-    outs = pl.pallas_call(
+    idx, prio = pl.pallas_call(
         kernel,
-        out_shape=(
-            jax.ShapeDtypeStruct((padded,), jnp.int32),
-            jax.ShapeDtypeStruct((padded,), dtype),
-            *(jax.ShapeDtypeStruct((padded * w,), f.dtype) for f, w in zip(fields, widths, strict=True)),
-        ),
+        out_shape=(jax.ShapeDtypeStruct((padded,), jnp.int32), jax.ShapeDtypeStruct((padded,), dtype)),
         grid=(padded // group,),
         interpret=interpret,
         compiler_params=None if interpret else plgpu.CompilerParams(num_warps=SAMPLE_WARPS),
         name="block_tree_sample",
-    )(u, state.block_sums, state.leaf_values, *(f.reshape(-1) for f in fields))
-    gathered = [o[: m * w].reshape((m, *f.shape[1:])) for o, f, w in zip(outs[2:], fields, widths, strict=True)]
-    return outs[0][:m], outs[1][:m], (jax.tree.unflatten(treedef, gathered) if data is not None else None)
+    )(u, state.block_sums, state.leaf_values)
+    return idx[:m], prio[:m]
 
 
 def stratified_sample_with_priorities(
@@ -278,25 +260,11 @@ def stratified_sample_with_priorities(
     Returns ``([batch_size] int32 leaf indices, [batch_size] their priorities)``.  With
     ``total == 0`` (empty tree) the result is meaningless; callers sample once something is stored.
     """
-    return stratified_sample_with_data(key, state, batch_size, None, backend)[:2]
-
-
-def stratified_sample_with_data(
-    key: jax.Array, state: BlockTreeState, batch_size: int, data: Any, backend: str = "auto"
-) -> tuple[jax.Array, jax.Array, Any]:
-    """:func:`stratified_sample_with_priorities` plus the sampled rows of ``data``, gathered in the same kernel.
-
-    Args:
-      data: pytree of ``[capacity, ...]`` arrays (a replay's storage), or None.
-    Returns:
-      ``([m] int32 indices, [m] priorities, pytree of [m, ...] rows or None)``.
-    """
     u = jax.random.uniform(key, (batch_size,), state.leaf_values.dtype)
     backend = resolve_backend(backend)
-    if backend != "xla":
-        return _sample_pallas(u, state, backend == "interpret", data)
-    idx, prio = _sample_xla(u, state)
-    return idx, prio, (None if data is None else jax.tree.map(lambda d: d[idx], data))
+    if backend == "xla":
+        return _sample_xla(u, state)
+    return _sample_pallas(u, state, interpret=backend == "interpret")
 
 
 def find(state: BlockTreeState, queries: jax.Array) -> jax.Array:

@@ -169,7 +169,9 @@ def make_prioritized_replay(
     if tree == "block":
         new_tree = lambda: block_tree.init(capacity)  # noqa: E731
         set_tree = functools.partial(block_tree.set, backend=backend)
-        sample_tree = None  # see sample()
+        sample_tree = functools.partial(
+            block_tree.stratified_sample_with_priorities, batch_size=batch_size, backend=backend
+        )
         tree_total = block_tree.total
         rule = block_tree.PriorityRule(float(alpha), float(priority_eps), float(beta_increment))
     else:
@@ -213,15 +215,10 @@ def make_prioritized_replay(
 
     def sample(key: jax.Array, state: PrioritizedReplayState) -> PrioritizedSample:
         """Stratified prioritised mini-batch with probabilities and IS weights at the current β."""
-        if tree == "block":  # the rows are gathered by the sampling kernel itself
-            indices, priorities, experience = block_tree.stratified_sample_with_data(
-                key, state.tree, batch_size, state.data, backend=backend
-            )
-        else:
-            indices, priorities = sample_tree(key, state.tree)
-            experience = jax.tree.map(lambda d: d[indices], state.data)
+        indices, priorities = sample_tree(key, state.tree)
         probs = priorities / tree_total(state.tree)
         weights = importance_weights(probs, state.size, state.beta)
+        experience = jax.tree.map(lambda d: d[indices], state.data)
         return PrioritizedSample(experience=experience, indices=indices, probabilities=probs, weights=weights)
 
     def update_priorities(

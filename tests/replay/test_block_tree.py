@@ -152,25 +152,3 @@ def test_unique_writes_large_batches_and_bad_input():
         block_tree.init(100, block_size=12)
     with pytest.raises(ValueError, match=r"backend='cuda' is not one of \('auto', 'pallas', 'xla', 'interpret'\)"):
         block_tree.set(block_tree.init(4), jnp.array([0]), jnp.array([1.0]), backend="cuda")
-
-
-def test_sampling_kernel_gathers_the_sampled_rows():
-    # fields of several shapes and dtypes; 6 queries in programs of 4 (the last program half empty)
-    capacity = 40
-    tree = FNS["xla"]["set"](block_tree.init(capacity), jnp.arange(BATCH) * 3, jnp.arange(1.0, BATCH + 1),
-                             jnp.ones(BATCH, bool))  # fmt: skip
-    data = {
-        "obs": jnp.arange(capacity * 6, dtype=jnp.float32).reshape(capacity, 3, 2),
-        "flag": jnp.arange(capacity, dtype=jnp.int32) % 7,
-        "r": -jnp.arange(capacity, dtype=jnp.float32),
-    }
-    key = jax.random.PRNGKey(4)
-    out = {b: block_tree.stratified_sample_with_data(key, tree, 6, data, backend=b) for b in BACKENDS}
-    idx = np.asarray(out["xla"][0])
-    assert np.all(idx % 3 == 0) and idx.shape == (6,)  # written slots only
-    for b, (i, prio, rows) in out.items():
-        np.testing.assert_array_equal(np.asarray(i), idx)
-        np.testing.assert_array_equal(np.asarray(prio), idx // 3 + 1)
-        for name, field in data.items():
-            assert rows[name].dtype == field.dtype
-            np.testing.assert_array_equal(np.asarray(rows[name]), np.asarray(field)[idx], err_msg=f"{b} {name}")
