@@ -256,19 +256,20 @@ def ddpg_preset(name: str, env_name: str, episode_length: int, reward: str | Non
             actor_hidden=(300, 100), critic_hidden=(300, 100), noise="ou", noise_scale=(0.2,),
             noise_reversion=(0.15,), noise_mean=(0.0,),
         )
-        # cpu: normalised observations; γ 0.99 with the reward as a cost (r − 1) and the end of the
-        # reference bootstrapped (only early termination ends an episode, valued −1/(1−γ)); Gaussian
-        # exploration σ 0.1 decaying linearly to 0.02; twin critics with the actor and targets updated
-        # every second critic update.  Measured on two or three seeds per reference
-        # (benchmarks/results/cpu-2core-ddpg_tracking.md, third round); `thesis` and `fast` keep Table 3.3.
+        # cpu and fast: normalised observations; γ 0.99 with the reward as a cost (r − 1) and the end
+        # of the reference bootstrapped (only early termination ends an episode, valued −1/(1−γ));
+        # Gaussian exploration σ 0.1 decaying linearly to 0.02; twin critics with the actor and targets
+        # updated every second critic update.  Measured on two or three seeds per reference on the CPU
+        # (benchmarks/results/cpu-2core-ddpg_tracking.md, third round) and once per robot with the fast
+        # schedule on an H200 (gpu-nvidia_h200-ddpg_tracking.md); `thesis` keeps Table 3.3.
+        learning = dict(normalize_obs=True, gamma=0.99, reward_shift=-1.0, termination_metric="early_termination",
+                        failure_value=-100.0, noise="gaussian", noise_scale=(0.1,), noise_end_factor=0.2,
+                        twin_critics=True, policy_delay=2)  # fmt: skip
         presets = {
             "thesis": {},
-            "cpu": dict(num_envs=4, unroll_length=8, updates_per_iteration=32, normalize_obs=True, gamma=0.99,
-                        reward_shift=-1.0, termination_metric="early_termination", failure_value=-100.0,
-                        noise="gaussian", noise_scale=(0.1,),
-                        noise_end_factor=0.2, twin_critics=True, policy_delay=2),
+            "cpu": dict(num_envs=4, unroll_length=8, updates_per_iteration=32, **learning),
             "fast": dict(num_envs=256, unroll_length=4, updates_per_iteration=32, batch_size=256,
-                         buffer_size=1_000_000, total_steps=20_000 * episode_length),
+                         buffer_size=1_000_000, total_steps=20_000 * episode_length, **learning),
         }
     else:
         base = DDPGConfig(schedule="steps", total_steps=200_000, num_envs=4, unroll_length=8, updates_per_iteration=8,

@@ -332,7 +332,8 @@ def test_tracking_presets_thesis_keeps_table_3_3_and_cpu_uses_the_measured_optio
     assert not thesis.twin_critics and thesis.policy_delay == 1 and thesis.reward_shift == 0.0
     assert thesis.noise_end_factor == 1.0 and thesis.termination_metric == ""
     for env in ("unicycle", "scara"):
-        cpu = ddpg_preset("cpu", env, 314).validate()
-        assert cpu.twin_critics and cpu.policy_delay == 2 and cpu.termination_metric == "early_termination"
-        # the cost form r − 1 needs early termination valued at the worst return −1/(1 − γ)
-        np.testing.assert_allclose(cpu.failure_value, cpu.reward_shift / (1.0 - cpu.gamma))
+        for name in ("cpu", "fast"):
+            cfg = ddpg_preset(name, env, 314).validate()
+            assert cfg.twin_critics and cfg.policy_delay == 2 and cfg.termination_metric == "early_termination"
+            # the cost form r − 1 needs early termination valued at the worst return −1/(1 − γ)
+            np.testing.assert_allclose(cfg.failure_value, cfg.reward_shift / (1.0 - cfg.gamma))
