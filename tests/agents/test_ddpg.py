@@ -14,6 +14,7 @@ from jaxrl_robot.agents.ddpg import (
     clipped_double_q,
     critic_loss,
     linear_noise_factor,
+    make_optimizer,
     make_trainer,
     smooth_target_action,
     soft_update,
@@ -337,3 +338,24 @@ def test_tracking_presets_thesis_keeps_table_3_3_and_cpu_uses_the_measured_optio
             assert cfg.twin_critics and cfg.policy_delay == 2 and cfg.termination_metric == "early_termination"
             # the cost form r − 1 needs early termination valued at the worst return −1/(1 − γ)
             np.testing.assert_allclose(cfg.failure_value, cfg.reward_shift / (1.0 - cfg.gamma))
+
+
+def test_lr_end_factor_decays_adam_step_linearly_by_hand():
+    """Adam's step on a constant gradient is ``lr_k · m̂/(√v̂ + ε) ≈ lr_k``, so the steps read off the schedule:
+    lr 1e-3 falling to 0.5e-3 over 4 steps gives 1, 0.875, 0.75, 0.625, then 0.5 held (× 1e-3)."""
+    tx = make_optimizer(1e-3, 0.0, end_factor=0.5, decay_steps=4)
+    p = jnp.zeros(())
+    opt = tx.init(p)
+    steps = []
+    for _ in range(6):
+        upd, opt = tx.update(jnp.ones(()), opt, p)
+        steps.append(-float(upd))
+    np.testing.assert_allclose(steps, [1e-3, 0.875e-3, 0.75e-3, 0.625e-3, 0.5e-3, 0.5e-3], rtol=1e-4)
+    const = make_optimizer(1e-3, 0.0)  # the default (factor 1): constant step
+    upd, _ = const.update(jnp.ones(()), const.init(p), p)
+    np.testing.assert_allclose(-float(upd), 1e-3, rtol=1e-5)
+    assert DDPGConfig(lr_end_factor=0.1).validate().lr_end_factor == 0.1
+    with pytest.raises(ConfigError, match=r"lr_end_factor=0.0 is out of range; allowed \(0, 1\]"):
+        DDPGConfig(lr_end_factor=0.0).validate()
+    with pytest.raises(ConfigError, match=r"lr_end_factor=1.5 is out of range; allowed \(0, 1\]"):
+        DDPGConfig(lr_end_factor=1.5).validate()

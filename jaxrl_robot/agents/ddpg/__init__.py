@@ -12,7 +12,15 @@ from jaxrl_robot.agents.ddpg.losses import (
     twin_critic_loss,
 )
 from jaxrl_robot.agents.ddpg.networks import OUTPUTS, DDPGActor, DDPGCritic
-from jaxrl_robot.agents.ddpg.train import GOAL_API, DDPGState, make_networks, make_noise_for, make_train, make_trainer
+from jaxrl_robot.agents.ddpg.train import (
+    GOAL_API,
+    DDPGState,
+    make_networks,
+    make_noise_for,
+    make_optimizer,
+    make_train,
+    make_trainer,
+)
 
 __all__ = [
     "GOAL_API",
@@ -29,6 +37,7 @@ __all__ = [
     "linear_noise_factor",
     "make_networks",
     "make_noise_for",
+    "make_optimizer",
     "make_train",
     "make_trainer",
     "smooth_target_action",

@@ -145,6 +145,13 @@ class DDPGConfig:
     """Name of a per-step 0/1 metric of the env marking the real terminations (tracking envs:
     ``"early_termination"``); any other episode end (the reference running out) is then treated as
     a time limit and bootstrapped (d = 0).  Empty: every end that is not a truncation terminates."""
+    lr_end_factor: float = 1.0
+    """Linear learning-rate decay of actor and critic (in (0, 1]): the Adam step size of the k-th step
+    of an optimiser is ``lr · (1 + (lr_end_factor − 1) · min(1, k / K))``, with K its planned steps
+    over the run — ``iterations × updates`` per iteration for the critic, that divided by
+    ``policy_delay`` for the actor (updates skipped before ``learning_starts`` leave the end factor
+    slightly higher).  Smaller late steps keep the policy from drifting away late in training.
+    1: constant learning rates (Algorithm 1)."""
 
     @property
     def iterations(self) -> int:
@@ -200,6 +207,7 @@ class DDPGConfig:
             raise ConfigError(f"policy_delay={self.policy_delay!r} must be an integer")
         check_range("noise_end_factor", self.noise_end_factor, 0.0, 1.0)
         check_range("noise_decay_fraction", self.noise_decay_fraction, 0.0, 1.0, lo_open=True)
+        check_range("lr_end_factor", self.lr_end_factor, 0.0, 1.0, lo_open=True)
         if self.reward_shift != self.reward_shift or abs(self.reward_shift) == float("inf"):
             raise ConfigError(f"reward_shift={self.reward_shift!r} must be a finite number")
         if self.termination_metric and not self.termination_metric.isidentifier():

@@ -19,8 +19,9 @@ truncation bootstraps); actor step on ``−mean Q(s, μ(s))``; soft target updat
 with PER, new priorities ``|y − Q| + ε`` and β annealing.  Options: twin critics with the
 clipped double-Q target ``min(Q1', Q2')`` (``twin_critics``), actor and target updates every
 ``policy_delay`` critic updates, and a linear decay of the exploration noise
-(``noise_end_factor``, ``noise_decay_fraction``), a reward shift in the target (``reward_shift``)
-and bootstrapping every episode end but those a metric marks (``termination_metric``).
+(``noise_end_factor``, ``noise_decay_fraction``) and of the learning rates (``lr_end_factor``),
+a reward shift in the target (``reward_shift``) and bootstrapping every episode end but those a
+metric marks (``termination_metric``).
 
 A failing step (termination without success; with ``termination_metric``, only the ends that
 metric marks) is stored with reward ``r + γ·failure_value`` and ``d = 1``, so its target is that
@@ -120,7 +121,14 @@ def make_noise_for(config: DDPGConfig, action_size: int) -> Noise:
     return make_noise("gaussian", action_size, scale=config.noise_scale, mean=config.noise_mean)
 
 
-def _optimizer(lr: float, max_grad_norm: float) -> optax.GradientTransformation:
+def make_optimizer(
+    lr: float, max_grad_norm: float, end_factor: float = 1.0, decay_steps: int = 1
+) -> optax.GradientTransformation:
+    """Adam with step size ``lr`` falling linearly to ``end_factor · lr`` over ``decay_steps`` of its own
+    steps and then held (``lr_end_factor``; constant when ``end_factor`` is 1), after clipping the
+    gradient to ``max_grad_norm`` (when > 0)."""
+    if end_factor < 1.0:
+        lr = optax.linear_schedule(lr, lr * end_factor, max(int(decay_steps), 1))
     adam = optax.adam(lr)
     return optax.chain(optax.clip_by_global_norm(max_grad_norm), adam) if max_grad_norm > 0 else adam
 
@@ -176,8 +184,11 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
     B, T = config.num_envs, episode_length
     obs_size, action_size = int(env.observation_size), int(env.action_size)
     actor, critic = make_networks(config, action_size)
-    actor_tx = _optimizer(config.actor_lr, config.max_grad_norm)
-    critic_tx = _optimizer(config.critic_lr, config.max_grad_norm)
+    critic_steps = config.iterations * (config.updates_per_cycle if config.schedule == "episodes"
+                                        else config.updates_per_iteration)
+    actor_tx = make_optimizer(config.actor_lr, config.max_grad_norm, config.lr_end_factor,
+                              critic_steps // config.policy_delay)
+    critic_tx = make_optimizer(config.critic_lr, config.max_grad_norm, config.lr_end_factor, critic_steps)
     noise = make_noise_for(config, action_size)
     her = make_her(env, config.her, config.her_k) if config.her != "none" else None
     copies = her.copies if her is not None else 1
