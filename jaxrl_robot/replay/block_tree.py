@@ -56,6 +56,8 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from jaxrl_robot.replay import sum_tree
+
 __all__ = [
     "BACKENDS",
     "BlockTreeState",
@@ -80,8 +82,6 @@ UPDATE_WARPS = 2
 KERNEL_BATCH_MAX = 1024
 """Largest update batch the update kernel takes (each program reads the whole batch); larger
 batches (a replay's ``add`` of many episodes) take the XLA path."""
-PAIRWISE_MAX = 1024
-"""Largest batch whose repeated indices are found by an all-pairs compare (else a stable sort)."""
 
 
 @struct.dataclass
@@ -407,7 +407,9 @@ def _keep(indices: jax.Array, valid: jax.Array | None, unique_indices: bool) -> 
     ok = jnp.ones(indices.shape, bool) if valid is None else valid
     if unique_indices:
         return ok
-    return _last_occurrence(indices, ok) if indices.shape[0] <= PAIRWISE_MAX else _last_occurrence_sorted(indices, ok)
+    if indices.shape[0] <= sum_tree.PAIRWISE_MAX:
+        return _last_occurrence(indices, ok)
+    return sum_tree.last_occurrence_mask(jnp.where(ok, indices, -1)) & ok  # a stable sort, O(B log B)
 
 
 def set(
@@ -471,12 +473,3 @@ def _update(
         return state, (None if rule is None else _next_scalars(scalars, raw, mask, rule))
     keep = _keep(indices, mask, True) if unique_indices else None  # None: found inside the kernel
     return _set_pallas(state, indices, values, mask, keep, backend == "interpret", rule, scalars)
-
-
-def _last_occurrence_sorted(indices: jax.Array, valid: jax.Array) -> jax.Array:
-    """:func:`_last_occurrence` by a stable sort, O(B log B), for large batches."""
-    key = jnp.where(valid, indices, -1)
-    order = jnp.argsort(key, stable=True)
-    s = key[order]
-    last_sorted = jnp.concatenate([s[1:] != s[:-1], jnp.ones((1,), bool)])
-    return jnp.zeros(indices.shape, bool).at[order].set(last_sorted) & valid
