@@ -64,6 +64,7 @@ __all__ = [
     "find",
     "get",
     "init",
+    "next_scalars",
     "probabilities",
     "rebuild",
     "resolve_backend",
@@ -324,7 +325,7 @@ def _apply_rule(values: jax.Array, rule: PriorityRule | None) -> tuple[jax.Array
     return jnp.exp(rule.alpha * jnp.log(raw)), raw  # raw > 0
 
 
-def _next_scalars(scalars: jax.Array, raw: jax.Array, valid: jax.Array | None, rule: PriorityRule) -> jax.Array:
+def next_scalars(scalars: jax.Array, raw: jax.Array, valid: jax.Array | None, rule: PriorityRule) -> jax.Array:
     """``[2]`` replay scalars ``[max raw priority, β]`` after an update (see :class:`PriorityRule`)."""
     seen = jnp.max(raw if valid is None else jnp.where(valid, raw, 0))
     pos = jax.lax.broadcasted_iota(jnp.int32, (2,), 0)
@@ -361,7 +362,7 @@ def _set_pallas(
 
             @pl.when(i == 0)
             def _():
-                out["scalars"][...] = _next_scalars(ref["scalars"][...], raw, ok if valid is not None else None, rule)
+                out["scalars"][...] = next_scalars(ref["scalars"][...], raw, ok if valid is not None else None, rule)
 
         block = idx // size
         me = jax.lax.broadcasted_iota(jnp.int32, (padded,), 0)
@@ -470,6 +471,6 @@ def _update(
     if backend == "xla" or indices.shape[0] > KERNEL_BATCH_MAX:
         leaf, raw = _apply_rule(values, rule)
         state = _set_xla(state, indices, leaf, _keep(indices, mask, unique_indices))
-        return state, (None if rule is None else _next_scalars(scalars, raw, mask, rule))
+        return state, (None if rule is None else next_scalars(scalars, raw, mask, rule))
     keep = _keep(indices, mask, True) if unique_indices else None  # None: found inside the kernel
     return _set_pallas(state, indices, values, mask, keep, backend == "interpret", rule, scalars)

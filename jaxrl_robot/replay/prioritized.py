@@ -46,9 +46,9 @@ __all__ = [
     "PrioritizedReplay",
     "PrioritizedReplayState",
     "PrioritizedSample",
+    "TREES",
     "importance_weights",
     "make_prioritized_replay",
-    "TREES",
 ]
 
 TREES = ("auto", "sum", "block")
@@ -166,6 +166,7 @@ def make_prioritized_replay(
     capacity, batch_size = int(capacity), int(batch_size)
     if tree == "auto":
         tree = "block" if jax.default_backend() == "gpu" else "sum"
+    rule = block_tree.PriorityRule(float(alpha), float(priority_eps), float(beta_increment))
     if tree == "block":
         new_tree = lambda: block_tree.init(capacity)  # noqa: E731
         set_tree = functools.partial(block_tree.set, backend=backend)
@@ -173,7 +174,6 @@ def make_prioritized_replay(
             block_tree.stratified_sample_with_priorities, batch_size=batch_size, backend=backend
         )
         tree_total = block_tree.total
-        rule = block_tree.PriorityRule(float(alpha), float(priority_eps), float(beta_increment))
     else:
         new_tree = lambda: sum_tree.init(capacity, branching)  # noqa: E731
         set_tree = sum_tree.set
@@ -232,7 +232,6 @@ def make_prioritized_replay(
             return state.replace(tree=new_tree, scalars=scalars)
         p = jnp.abs(td_errors.astype(jnp.float32)) + priority_eps
         new_tree = sum_tree.set(state.tree, indices, p**alpha)
-        scalars = jnp.stack([jnp.maximum(state.max_priority, jnp.max(p)), jnp.minimum(state.beta + beta_increment, 1)])
-        return state.replace(tree=new_tree, scalars=scalars)
+        return state.replace(tree=new_tree, scalars=block_tree.next_scalars(state.scalars, p, None, rule))
 
     return PrioritizedReplay(init=init, add=add, sample=sample, update_priorities=update_priorities)
