@@ -35,6 +35,7 @@ from jaxrl_robot.agents.a2c import (
 )
 from jaxrl_robot.evaluation import run_test_episodes
 from jaxrl_robot.networks import gaussian_entropy
+from tests.subproc import cpu_env
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
@@ -332,8 +333,7 @@ def test_config_errors_name_the_field():
 
 
 _DEVICES_SCRIPT = """
-import os, sys
-os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=3"
+import sys
 sys.path.insert(0, {root!r})
 import jax, numpy as np
 from jaxrl_robot import parallel
@@ -354,7 +354,8 @@ print("ok", float(m["staleness_mean"]))
 """
 
 
-def test_a3c_on_three_devices_gives_the_same_run_as_on_one(a3c_k3, tmp_path):
+@pytest.mark.parametrize("impl", ["shard_map", "vmap"])
+def test_a3c_on_three_devices_gives_the_same_run_as_on_one(a3c_k3, tmp_path, impl):
     """One worker per device: gathered gradients, one push order, re-sync of the local snapshots."""
     _, init, update = a3c_k3
     state = init(jax.random.PRNGKey(0))
@@ -363,7 +364,9 @@ def test_a3c_on_three_devices_gives_the_same_run_as_on_one(a3c_k3, tmp_path):
     ref = str(tmp_path / "one_device.npz")
     np.savez(ref, **{f"a{i}": np.asarray(x) for i, x in enumerate(jax.tree.leaves(jax.device_get(state)))})
     script = _DEVICES_SCRIPT.format(root=ROOT, ref=ref)
-    res = subprocess.run([sys.executable, "-c", textwrap.dedent(script)], capture_output=True, text=True, cwd=ROOT)
+    env = cpu_env(devices=3, JAXRL_LANE_MAP=impl)
+    cmd = [sys.executable, "-c", textwrap.dedent(script)]
+    res = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env=env)
     assert res.returncode == 0, res.stderr[-3000:]
     assert res.stdout.strip().splitlines()[-1] == "ok 2.0"
 

@@ -1,14 +1,17 @@
-"""The sharded path: the same lanes on 4 (fake CPU) devices train like on one device."""
+"""The sharded path: the same lanes on 4 (fake CPU) devices train like on one device.
 
-import os
+Both lane-map implementations of ``jaxrl_robot.parallel`` (``shard_map`` and ``vmap``) are run.
+"""
+
 import subprocess
 import sys
 import textwrap
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from tests.subproc import ROOT, cpu_env
 
 SCRIPT = textwrap.dedent(
     """
+    import os
     import jax, numpy as np
     from jaxrl_robot import parallel
     from jaxrl_robot.agents.ppo import make_trainer
@@ -18,20 +21,29 @@ SCRIPT = textwrap.dedent(
     cfg = TOY.replace(num_envs=8, minibatch_size=32, schedule=(), objective="clip", reset_group=2)
     probe = np.random.default_rng(0).uniform(-1, 1, (16, 2)).astype(np.float32)
     out = {}
-    for n in (1, 4):
-        trainer = make_trainer(cfg, Line(), mesh=parallel.lane_mesh(n), iterations_per_update=2)
+    for name, n, impl in ((1, 1, ""), ("shard_map", 4, "shard_map"), ("vmap", 4, "vmap")):
+        os.environ["JAXRL_LANE_MAP"] = impl
+        mesh = parallel.lane_mesh(n)
+        assert parallel.lane_map_impl(mesh) == (impl or "shard_map")
+        trainer = make_trainer(cfg, Line(), mesh=mesh, iterations_per_update=2)
         state = jax.jit(trainer.init)(jax.random.PRNGKey(0))
-        state, metrics = jax.jit(trainer.update)(state)
+        update = jax.jit(trainer.update)
+        state, metrics = update(state)
+        state, metrics = update(state)  # the state's shardings round-trip: no second compilation
+        assert update._cache_size() == 1
         assert len(state.env_state.obs.sharding.device_set) == n
-        out[n] = (state, metrics, np.asarray(trainer.policy(state)(probe)))
-    (s1, m1, a1), (s4, m4, a4) = out[1], out[4]
-    # same lanes, same randomness: identical trajectories and statistics
-    np.testing.assert_allclose(s1.env_state.obs, s4.env_state.obs, atol=1e-5)
-    np.testing.assert_allclose(s1.obs_stats.mean, s4.obs_stats.mean, atol=1e-6)
-    for k in ("critic_loss", "actor_loss", "kl", "reward", "episodes"):
-        np.testing.assert_allclose(m1[k], m4[k], rtol=1e-4, atol=1e-6, err_msg=k)
-    jax.tree.map(lambda a, b: np.testing.assert_allclose(a, b, atol=1e-5), s1.critic_params, s4.critic_params)
-    np.testing.assert_allclose(a1, a4, atol=1e-4)
+        assert n == 1 or state.env_state.obs.sharding.spec[0] == parallel.LANES
+        out[name] = (jax.device_get(state), jax.device_get(metrics), np.asarray(trainer.policy(state)(probe)))
+    s1, m1, a1 = out[1]
+    for name in ("shard_map", "vmap"):
+        s4, m4, a4 = out[name]
+        # same lanes, same randomness: identical trajectories and statistics
+        np.testing.assert_allclose(s1.env_state.obs, s4.env_state.obs, atol=1e-5, err_msg=name)
+        np.testing.assert_allclose(s1.obs_stats.mean, s4.obs_stats.mean, atol=1e-6, err_msg=name)
+        for k in ("critic_loss", "actor_loss", "kl", "reward", "episodes"):
+            np.testing.assert_allclose(m1[k], m4[k], rtol=1e-4, atol=1e-6, err_msg=f"{name} {k}")
+        jax.tree.map(lambda a, b: np.testing.assert_allclose(a, b, atol=1e-5), s1.critic_params, s4.critic_params)
+        np.testing.assert_allclose(a1, a4, atol=1e-4, err_msg=name)
     # and training did move the policy, so the comparison is not between two initial states
     init = jax.jit(make_trainer(cfg, Line()).init)(jax.random.PRNGKey(0))
     a0 = np.asarray(make_trainer(cfg, Line()).policy(init)(probe))
@@ -42,11 +54,8 @@ SCRIPT = textwrap.dedent(
 
 
 def test_four_fake_devices_match_one_device():
-    env = dict(os.environ)
-    env["XLA_FLAGS"] = (env.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=4").strip()
-    env["PYTHONPATH"] = ROOT + os.pathsep + env.get("PYTHONPATH", "")
     proc = subprocess.run(
-        [sys.executable, "-c", SCRIPT], cwd=ROOT, env=env, capture_output=True, text=True, timeout=600
+        [sys.executable, "-c", SCRIPT], cwd=ROOT, env=cpu_env(devices=4), capture_output=True, text=True, timeout=600
     )
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     assert "OK" in proc.stdout

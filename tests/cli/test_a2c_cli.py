@@ -8,6 +8,7 @@ import sys
 
 from jaxrl_robot.checkpoint import Checkpointer
 from jaxrl_robot.logging import read_csv
+from tests.subproc import cpu_env
 from train import a2c as a2c_cli
 from train import a3c as a3c_cli
 
@@ -19,7 +20,7 @@ def test_a3c_cli_tiny_run_writes_the_run_directory(tmp_path):
     cmd = [sys.executable, "-m", "train.a3c", "--env", "arm7", "--reward", "path", "--total-steps", "256",
            "--chunks", "2", "--eval-episodes", "5", "--push-order", "fixed", "--lanes-per-worker", "1", "--out",
            str(tmp_path), *TINY]  # fmt: skip
-    env = {**os.environ, "PYTHONPATH": ROOT + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    env = cpu_env()
     proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     (run_dir,) = glob.glob(str(tmp_path / "a3c-arm7-*"))

@@ -11,6 +11,7 @@ import jax
 import numpy as np
 
 from jaxrl_robot.checkpoint import Checkpointer
+from tests.subproc import cpu_env
 from train import ddpg as ddpg_cli
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -22,7 +23,7 @@ def test_cli_tiny_her_run_writes_the_run_directory(tmp_path):
            "--her-k", "2", "--per", "--env-config", "mode=kinematic", "max_steps=10", "--epochs", "2",
            "--cycles-per-epoch", "2", "--num-envs", "2", "--updates-per-cycle", "2", "--buffer-size", "2000",
            "--eval-episodes", "5", "--out", str(tmp_path), *TINY]  # fmt: skip
-    env = {**os.environ, "PYTHONPATH": ROOT + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    env = cpu_env()
     proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     (run_dir,) = glob.glob(str(tmp_path / "ddpg-arm7-*"))

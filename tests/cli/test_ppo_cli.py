@@ -13,6 +13,7 @@ import pytest
 
 from jaxrl_robot.checkpoint import Checkpointer
 from jaxrl_robot.types import Trainer
+from tests.subproc import cpu_env
 from train import common
 from train import ppo as ppo_cli
 
@@ -27,7 +28,7 @@ def test_cli_learns_arm7_on_a_small_budget_and_writes_the_run_directory(tmp_path
     """The default command on a small budget: the run directory, the printed evaluation, and learning."""
     cmd = [sys.executable, "-m", "train.ppo", "--env", "arm7", "--total-steps", "120000", "--chunks", "3",
            "--eval-episodes", "50", "--out", str(tmp_path)]  # fmt: skip
-    env = {**os.environ, "PYTHONPATH": ROOT + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    env = cpu_env()
     proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     (run_dir,) = glob.glob(str(tmp_path / "ppo-arm7-*"))
@@ -69,13 +70,11 @@ def _final_checkpoint(run_dir):
 
 def test_resume_equals_uninterrupted(tmp_path):
     # The three runs compile the same programs: a persistent compilation cache makes the 2nd and 3rd cheap.
-    env = {
-        **os.environ,
-        "PYTHONPATH": ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""),
-        "JAX_COMPILATION_CACHE_DIR": str(tmp_path / "jax_cache"),
-        "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0",
-        "JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES": "-1",
-    }
+    env = cpu_env(
+        JAX_COMPILATION_CACHE_DIR=str(tmp_path / "jax_cache"),
+        JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0",
+        JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES="-1",
+    )
     proc = subprocess.run([sys.executable, "-c", RESUME_SCRIPT, str(tmp_path), json.dumps(TINY)], cwd=ROOT, env=env,
                           capture_output=True, text=True, timeout=600)  # fmt: skip
     assert proc.returncode == 0 and "OK" in proc.stdout, proc.stdout[-3000:] + proc.stderr[-3000:]

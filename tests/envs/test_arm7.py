@@ -372,6 +372,7 @@ def test_cpu_fix_sets_xla_flags_only_when_it_is_safe(monkeypatch):
 
 def test_importing_envs_mjx_disables_algsimp_on_a_cpu_only_host():
     env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", xla.OPT_OUT_ENV, "JAX_PLATFORMS")}
+    env["XLA_PYTHON_CLIENT_PREALLOCATE"] = "false"  # on a GPU machine this process shares the GPU
     code = "import os, envs_mjx, jax; jax.numpy.ones(1); print(os.environ.get('XLA_FLAGS'))"
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     expected = "None" if xla._accelerator_possible() else xla.CPU_FLAG

@@ -1,0 +1,130 @@
+"""Reproducer: MJX physics inside ``shard_map`` over several GPUs (each variant in its own process).
+
+``python -m benchmarks.multigpu_repro [--variants a,b] [--lanes 256] [--out FILE]`` runs every
+variant in a fresh subprocess (a segmentation fault only ends that variant) and prints a table
+of exit codes. A variant compiles and runs the rollout of ``arm7`` in ``pd`` mode (MJX position
+servos) for a few steps on all visible devices, lanes split over the ``"lanes"`` mesh axis.
+
+Variants:
+  one_device      shard_map over a 1-device mesh (control);
+  shard_map       ``parallel.shard_lanes(..., impl="shard_map")`` of the rollout (``jax.shard_map``);
+  vmap            ``parallel.shard_lanes(..., impl="vmap")``: vmap over a device axis, partitioned by XLA;
+  jit_sharded     ``jax.jit`` with ``NamedSharding`` in/out shardings and no shard_map;
+  shard_map+<F>   shard_map with one XLA flag ``F`` added to ``XLA_FLAGS`` (e.g. autotune off);
+  shard_map_no_shardy   shard_map with ``jax_use_shardy_partitioner=False``;
+  trainer         ``parallel.shard_lanes`` with its default implementation for the mesh;
+  <variant>@<T>   the variant under a mock GPU topology ``T`` (``JAX_MOCK_GPU_TOPOLOGY``, e.g.
+                  ``1x2x1``): compiles for several GPUs on one (compile only when a device is remote).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+
+FLAGS = {
+    "autotune0": "--xla_gpu_autotune_level=0",
+    "no_cmdbuf": "--xla_gpu_enable_command_buffer=",
+    "no_triton_gemm": "--xla_gpu_enable_triton_gemm=false",
+    "no_lhs": "--xla_gpu_enable_latency_hiding_scheduler=false",
+    "no_dbuf": "--xla_gpu_enable_while_loop_double_buffering=false",
+}
+DEFAULT = ["one_device", "jit_sharded", "vmap", "trainer", "shard_map", "shard_map_no_shardy"]
+DEFAULT += [f"shard_map+{f}" for f in FLAGS]
+
+
+def child(variant: str, lanes: int, steps: int) -> None:
+    import jax
+    import jax.numpy as jnp
+
+    if variant == "shard_map_no_shardy":
+        jax.config.update("jax_use_shardy_partitioner", False)
+    import envs_mjx
+    from envs_mjx.base import wrap_for_training
+    from jaxrl_robot import parallel
+
+    env = envs_mjx.make("arm7", mode="pd")
+    wrapped = wrap_for_training(env, episode_length=50)
+    n_dev = 1 if variant == "one_device" else len(jax.devices())
+    mesh = parallel.lane_mesh(n_dev)
+    act = jnp.full((env.action_size,), 0.1, jnp.float32)
+
+    def roll(keys):
+        state = wrapped.reset(keys)
+
+        def body(s, _):
+            s = wrapped.step(s, jnp.broadcast_to(act, (s.obs.shape[0], env.action_size)))
+            return s, jnp.mean(s.reward)
+
+        state, r = jax.lax.scan(body, state, None, length=steps)
+        return state.obs, r
+
+    keys = jax.random.split(jax.random.PRNGKey(0), lanes)
+    if variant == "jit_sharded":
+        split = parallel.lane_sharding(mesh)
+        fn = jax.jit(roll, in_shardings=split, out_shardings=(split, parallel.lane_sharding(mesh, False)))
+    else:
+        impl = {"trainer": None, "vmap": "vmap"}.get(variant, "shard_map")
+        specs = (parallel.P(parallel.LANES), (parallel.P(parallel.LANES), parallel.P()))
+        fn = jax.jit(parallel.shard_lanes(roll, mesh, *specs, impl=impl))
+    t0 = time.perf_counter()
+    spec = jax.ShapeDtypeStruct(keys.shape, keys.dtype, sharding=parallel.lane_sharding(mesh))
+    compiled = fn.lower(spec).compile()
+    t1 = time.perf_counter()
+    if any(d.process_index != jax.process_index() for d in mesh.devices.flat):  # mock topology: compile only
+        print(json.dumps({"variant": variant, "devices": n_dev, "compile_s": round(t1 - t0, 2), "ran": False}))
+        return
+    obs, r = compiled(jax.device_put(keys, parallel.lane_sharding(mesh)))
+    jax.block_until_ready(obs)
+    print(json.dumps({"variant": variant, "devices": n_dev, "compile_s": round(t1 - t0, 2),
+                      "obs_sum": float(jnp.sum(obs)), "reward_last": float(r[-1])}))
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--variants", default=",".join(DEFAULT))
+    p.add_argument("--lanes", type=int, default=256)
+    p.add_argument("--steps", type=int, default=4)
+    p.add_argument("--timeout", type=int, default=300)
+    p.add_argument("--out", default="")
+    p.add_argument("--child", default="", help=argparse.SUPPRESS)
+    a = p.parse_args()
+    if a.child:
+        child(a.child, a.lanes, a.steps)
+        return
+    rows = []
+    for v in a.variants.split(","):
+        env = dict(os.environ)
+        if "@" in v:  # a mock GPU topology (slices x hosts x devices per host) on the GPUs at hand
+            env["JAX_MOCK_GPU_TOPOLOGY"] = v.split("@", 1)[1]
+        if "+" in v:
+            env["XLA_FLAGS"] = (env.get("XLA_FLAGS", "") + " " + FLAGS[v.split("+", 1)[1]]).strip()
+        t0 = time.time()
+        try:
+            base = v.split("+")[0].split("@")[0]
+            cmd = [sys.executable, "-X", "faulthandler", "-m", "benchmarks.multigpu_repro", "--child", base,
+                   "--lanes", str(a.lanes), "--steps", str(a.steps)]  # fmt: skip
+            proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=a.timeout)
+            rc, out, err = proc.returncode, proc.stdout, proc.stderr
+        except subprocess.TimeoutExpired:
+            rc, out, err = "timeout", "", ""
+        result = {}
+        for line in out.splitlines():
+            if line.startswith("{"):
+                result = json.loads(line)
+        rows.append({"variant": v, "rc": rc, "wall_s": round(time.time() - t0, 1), **result,
+                     "stderr_tail": err[-1500:] if rc != 0 else ""})
+        print(f"{v:40s} rc={rc!s:8s} {json.dumps(result)}", flush=True)
+        if rc != 0:
+            print("   " + err[-1200:].replace("\n", "\n   "), flush=True)
+    if a.out:
+        with open(a.out, "w") as f:
+            json.dump(rows, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()
