@@ -46,15 +46,22 @@ def device_label() -> str:
 
 
 def bench_ours(
-    env: Any, lanes: int, unroll: int, chunk_iters: int, repeats: int, updates: int, reset_refresh: float
+    env: Any,
+    lanes: int,
+    unroll: int,
+    chunk_iters: int,
+    repeats: int,
+    updates: int,
+    reset_refresh: float,
+    mesh: jax.sharding.Mesh | None = None,
 ) -> dict[str, Any]:
-    """Steps/s of our PPO at ``lanes`` lanes (compile apart, median of repeats)."""
+    """Steps/s of our PPO at ``lanes`` lanes over ``mesh`` (default all devices; compile apart, median of repeats)."""
     cfg = PPOConfig(
         num_envs=lanes, unroll_length=unroll, minibatch_size=lanes * unroll // updates, actor_updates=updates,
         critic_updates=updates, batch_norm=False, sigma=(0.5,), actor_hidden=(200, 200), critic_hidden=(200, 200),
         total_steps=lanes * unroll * chunk_iters, episode_length=int(env.episode_length), reset_refresh=reset_refresh,
     )  # fmt: skip
-    trainer = make_trainer(cfg, env, iterations_per_update=chunk_iters)
+    trainer = make_trainer(cfg, env, mesh=mesh, iterations_per_update=chunk_iters)
     state = jax.block_until_ready(jax.jit(trainer.init)(jax.random.PRNGKey(0)))
     t0 = time.perf_counter()
     compiled = jax.jit(trainer.update).lower(state).compile()
@@ -69,6 +76,7 @@ def bench_ours(
     return {
         "impl": "jaxrl_robot",
         "lanes": lanes,
+        "devices": int(mesh.devices.size) if mesh is not None else len(jax.devices()),
         "reset_refresh": reset_refresh,
         "unroll": unroll,
         "steps_per_call": trainer.env_steps_per_update,

@@ -144,7 +144,7 @@ def _vmap_lanes(fn: Callable[..., Any], mesh: Mesh, in_specs: Any, out_specs: An
 
     def from_devices(x: jax.Array) -> jax.Array:
         x = jax.lax.with_sharding_constraint(x, split_sharding)
-        return jax.lax.with_sharding_constraint(x.reshape((-1,) + x.shape[2:]), split_sharding)
+        return jax.lax.with_sharding_constraint(x.reshape((x.shape[0] * x.shape[1],) + x.shape[2:]), split_sharding)
 
     def first(x: jax.Array) -> jax.Array:
         return jax.lax.with_sharding_constraint(x[0], replicated)

@@ -1,0 +1,174 @@
+"""PPO training throughput over lanes and GPUs: weak and strong scaling, brax's PPO beside it.
+
+    python -m benchmarks.scaling                          # arm7 pd and unicycle, sizes for the machine
+    python -m benchmarks.scaling --envs arm7 --one 8192 32768 --weak 16384 32768 --strong 65536
+
+One process drives every configuration: a 1-device mesh (``parallel.lane_mesh(1)``) for the
+one-GPU rows, a 2-device mesh for the two-GPU rows (lanes split over the mesh by
+``jaxrl_robot.parallel``). Per configuration our PPO (``benchmarks.train_throughput.bench_ours``:
+N = 16, 4 actor + 4 critic mini-batch updates, 2 x 200 networks) is compiled apart and timed as the
+median of ``--repeats`` chunk calls of ``--chunk-iters`` iterations (``block_until_ready``).
+
+* ``--one``: lane counts on one GPU (is throughput non-decreasing in the lanes?);
+* ``--weak``: lanes per GPU; each runs on 1 GPU with L lanes and on every GPU with L x GPUs lanes;
+  efficiency = steps/s(D GPUs) / (D x steps/s(1 GPU));
+* ``--strong``: total lanes, on 1 GPU and on all GPUs;
+* ``--brax``: lane counts of brax's PPO on one GPU (``benchmarks/peers/brax_ppo.py``; it uses every
+  visible device, so it runs on a 1-GPU process: ``CUDA_VISIBLE_DEVICES`` = the first GPU).
+
+Results: ``benchmarks/results/<device>x<gpus>-scaling.json`` and ``.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+from typing import Any
+
+import jax
+
+import envs_mjx
+from benchmarks.train_throughput import RESULTS, bench_brax, bench_ours, device_label
+from jaxrl_robot import parallel
+
+ENV_CONFIGS = {"arm7": {"mode": "pd"}, "unicycle": {"mode": "dynamic"}, "scara": {}}
+
+
+def _row(env_name: str, kind: str, devices: int, r: dict[str, Any]) -> dict[str, Any]:
+    return {"env": env_name, "kind": kind, "devices": devices, **r}
+
+
+def run_ours(env_name: str, args: argparse.Namespace) -> list[dict[str, Any]]:
+    env = envs_mjx.make(env_name, **ENV_CONFIGS[env_name])
+    n_all = len(jax.devices())
+    plan: list[tuple[str, int, int]] = [("one", 1, k) for k in args.one]
+    for per in args.weak:
+        plan += [("weak", 1, per)] + ([("weak", n_all, per * n_all)] if n_all > 1 else [])
+    for total in args.strong:
+        plan += [("strong", 1, total)] + ([("strong", n_all, total)] if n_all > 1 else [])
+    done: dict[tuple[int, int], dict[str, Any]] = {}
+    rows = []
+    for kind, devs, lanes in plan:
+        if (devs, lanes) not in done:
+            mesh = parallel.lane_mesh(devs)
+            try:
+                r = bench_ours(env, lanes, args.unroll, args.chunk_iters, args.repeats, args.updates,
+                               args.reset_refresh, mesh=mesh)  # fmt: skip
+                r["lane_map"] = parallel.lane_map_impl(mesh)
+            except Exception as e:  # e.g. out of memory: recorded, the sweep goes on
+                r = {"impl": "jaxrl_robot", "lanes": lanes, "steps_per_s": float("nan"), "error": repr(e)[:400]}
+            done[(devs, lanes)] = r
+            print(f"{env_name:9s} ours {devs} GPU(s) lanes={lanes:7d} {r['steps_per_s']:14,.0f} steps/s "
+                  f"compile {r.get('compile_s', float('nan')):.1f}s", flush=True)  # fmt: skip
+        rows.append(_row(env_name, kind, devs, done[(devs, lanes)]))
+    return rows
+
+
+def run_brax(env_name: str, args: argparse.Namespace) -> list[dict[str, Any]]:
+    env = envs_mjx.make(env_name, **ENV_CONFIGS[env_name])
+    rows = []
+    for lanes in args.brax:
+        try:
+            r = bench_brax(env, lanes, args.unroll, args.chunk_iters, args.repeats, args.updates)
+        except Exception as e:  # a peer failure is recorded, not fatal
+            r = {"impl": "brax.ppo", "lanes": lanes, "steps_per_s": float("nan"), "error": repr(e)[:400]}
+        print(f"{env_name:9s} brax 1 GPU(s) lanes={lanes:7d} {r['steps_per_s']:14,.0f} steps/s", flush=True)
+        rows.append(_row(env_name, "brax", 1, r))
+    return rows
+
+
+def _brax_in_subprocess(args: argparse.Namespace, tmp: str) -> list[dict[str, Any]]:
+    """brax's PPO in a process that sees only the first GPU (it pmaps over every visible device)."""
+    env = dict(os.environ, CUDA_VISIBLE_DEVICES=os.environ.get("CUDA_VISIBLE_DEVICES", "0").split(",")[0])
+    cmd = [sys.executable, "-m", "benchmarks.scaling", "--brax-only", tmp, "--envs", *args.envs,
+           "--brax", *map(str, args.brax), "--unroll", str(args.unroll), "--updates", str(args.updates),
+           "--chunk-iters", str(args.chunk_iters), "--repeats", str(args.repeats)]  # fmt: skip
+    proc = subprocess.run(cmd, env=env, text=True)
+    if proc.returncode != 0 or not os.path.exists(tmp):
+        return [{"kind": "brax", "impl": "brax.ppo", "steps_per_s": float("nan"), "error": f"rc={proc.returncode}"}]
+    with open(tmp) as f:
+        return json.load(f)
+
+
+def to_markdown(result: dict[str, Any]) -> str:
+    lines = [
+        f"# PPO scaling — {result['device']} x {result['gpus']}",
+        "",
+        f"jax {result['jax']}, {result['date']}; N = {result['unroll']}, {result['updates']} actor + "
+        f"{result['updates']} critic updates per iteration, {result['chunk_iters']} iterations per timed call, "
+        f"median of {result['repeats']}; reset refresh {result['reset_refresh']}.",
+        "",
+        "| env | kind | impl | GPUs | lanes | lanes/GPU | env-steps/s | vs 1 GPU same lanes/GPU | compile s |",
+        "|---|---|---|---:|---:|---:|---:|---:|---:|",
+    ]
+    one = {(r["env"], r["lanes"]): r["steps_per_s"] for r in result["runs"] if r["devices"] == 1
+           and r.get("impl") == "jaxrl_robot"}  # fmt: skip
+    for r in result["runs"]:
+        d, lanes = r["devices"], r.get("lanes", 0)
+        per = lanes // d if d else lanes
+        base = one.get((r["env"], per))
+        eff = f"{r['steps_per_s'] / (d * base):.2f} (x{r['steps_per_s'] / base:.2f})" if base and d > 1 else ""
+        comp = r.get("compile_s", r.get("first_epoch_s", float("nan")))
+        lines.append(f"| {r['env']} | {r['kind']} | {r.get('impl')} | {d} | {lanes} | {per} | "
+                     f"{r['steps_per_s']:,.0f} | {eff} | {comp:.1f} |")  # fmt: skip
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    on_cpu = jax.default_backend() == "cpu"
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--envs", nargs="+", default=["arm7", "unicycle"], choices=sorted(ENV_CONFIGS))
+    p.add_argument("--one", type=int, nargs="*", default=[64, 128] if on_cpu else [8192, 16384, 32768, 65536, 131072])
+    p.add_argument("--weak", type=int, nargs="*", default=[64] if on_cpu else [16384, 32768, 65536])
+    p.add_argument("--strong", type=int, nargs="*", default=[128] if on_cpu else [65536])
+    p.add_argument("--brax", type=int, nargs="*", default=[] if on_cpu else [16384, 32768, 65536])
+    p.add_argument("--unroll", type=int, default=16)
+    p.add_argument("--updates", type=int, default=4)
+    p.add_argument("--chunk-iters", type=int, default=4)
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--reset-refresh", type=float, default=0.125)
+    p.add_argument("--out", default=RESULTS)
+    p.add_argument("--brax-only", default="", help=argparse.SUPPRESS)
+    args = p.parse_args(argv)
+    if args.brax_only:
+        rows = [r for e in args.envs for r in run_brax(e, args)]
+        with open(args.brax_only, "w") as f:
+            json.dump(rows, f)
+        return {"runs": rows}
+    runs = [r for e in args.envs for r in run_ours(e, args)]
+    if args.brax:
+        runs += _brax_in_subprocess(args, os.path.join(args.out, ".brax_rows.json"))
+        if os.path.exists(os.path.join(args.out, ".brax_rows.json")):
+            os.remove(os.path.join(args.out, ".brax_rows.json"))
+    result = {
+        "benchmark": "scaling",
+        "device": device_label(),
+        "gpus": len(jax.devices()),
+        "jax": jax.__version__,
+        "host": platform.node(),
+        "date": time.strftime("%Y-%m-%d %H:%M"),
+        "unroll": args.unroll,
+        "updates": args.updates,
+        "chunk_iters": args.chunk_iters,
+        "repeats": args.repeats,
+        "reset_refresh": args.reset_refresh,
+        "env_configs": {e: ENV_CONFIGS[e] for e in args.envs},
+        "runs": runs,
+    }
+    os.makedirs(args.out, exist_ok=True)
+    stem = os.path.join(args.out, f"{result['device']}x{result['gpus']}-scaling")
+    with open(stem + ".json", "w") as f:
+        json.dump(result, f, indent=2, default=float)
+    with open(stem + ".md", "w") as f:
+        f.write(to_markdown(result))
+    print(to_markdown(result))
+    return result
+
+
+if __name__ == "__main__":
+    main()
