@@ -35,6 +35,7 @@ implementations run the same arithmetic, so they agree up to float summation ord
 from __future__ import annotations
 
 import os
+import warnings
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -189,10 +190,65 @@ def global_lane_ids(num_local: int, axis_name: str = LANES) -> jax.Array:
     return jax.lax.axis_index(axis_name) * num_local + jnp.arange(num_local)
 
 
-def initialize_multihost(**kwargs: Any) -> None:
-    """Join a multi-host run (``jax.distributed.initialize``); call once before using devices.
+def initialize_multihost(
+    coordinator_address: str | None = None,
+    num_processes: int | None = None,
+    process_id: int | None = None,
+    **kwargs: Any,
+) -> bool:
+    """Join a run over several processes (``jax.distributed.initialize``) if one is asked for or detected.
 
-    Each host then sees all global devices in ``jax.devices()``; fold ``jax.process_index()``
-    into per-host keys.
+    Call before any JAX computation. The run spans several processes when ``coordinator_address``
+    (``HOST:PORT`` of process 0), ``num_processes`` or ``process_id`` is given, when
+    ``$JAX_COORDINATOR_ADDRESS`` is set, or when JAX detects a cluster launch of several
+    processes (SLURM ``srun``, Open MPI ``mpirun``, an indexed Kubernetes job, Cloud TPU);
+    arguments left ``None`` are then filled in by JAX from that environment. Otherwise, or with
+    ``num_processes=1``, nothing happens and the process runs alone. On a CPU backend the
+    cross-process collectives use gloo unless ``jax_cpu_collectives_implementation`` is set.
+    Calling it again after a successful start does nothing.
+
+    Afterwards ``jax.devices()`` lists the devices of every process, so :func:`lane_mesh` spans
+    them all; every process runs the same program on the same inputs (the same seed).
+
+    Args:
+      coordinator_address, num_processes, process_id: as ``jax.distributed.initialize``.
+      kwargs: further arguments of ``jax.distributed.initialize`` (``local_device_ids``, …).
+    Returns:
+      True if this process is part of a run over several processes.
     """
-    jax.distributed.initialize(**kwargs)
+    if jax.distributed.is_initialized():
+        return True
+    if num_processes == 1:
+        return False
+    asked = any(v is not None for v in (coordinator_address, num_processes, process_id))
+    if not (asked or os.environ.get("JAX_COORDINATOR_ADDRESS") or _cluster_processes() > 1):
+        return False
+    if jax.config.read("jax_cpu_collectives_implementation") is None:
+        jax.config.update("jax_cpu_collectives_implementation", "gloo")
+    jax.distributed.initialize(coordinator_address, num_processes, process_id, **kwargs)
+    return jax.process_count() > 1
+
+
+def _cluster_processes() -> int:
+    """Processes of the cluster launch found by JAX's auto-detection (SLURM, Open MPI, …); 0 if none.
+
+    A cluster whose process count cannot be read (e.g. a Kubernetes pod outside an indexed job)
+    counts as none, with a warning.
+    """
+    try:
+        from jax._src.clusters import ClusterEnv
+    except ImportError:  # the detection's home moved: only explicit settings start a run of several processes
+        return 0
+    for env in ClusterEnv._cluster_types:
+        if env.opt_in_only_method:
+            continue
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                if not env.is_env_present():
+                    continue
+            return int(env.get_process_count())
+        except Exception as e:  # any failure of the detection means "not detected"
+            warnings.warn(f"{env.__name__} detected, process count unknown ({e}); running alone", stacklevel=2)
+            return 0
+    return 0
