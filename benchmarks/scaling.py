@@ -13,6 +13,8 @@ median of ``--repeats`` chunk calls of ``--chunk-iters`` iterations (``block_unt
 * ``--weak``: lanes per GPU; each runs on 1 GPU with L lanes and on every GPU with L x GPUs lanes;
   efficiency = steps/s(D GPUs) / (D x steps/s(1 GPU));
 * ``--strong``: total lanes, on 1 GPU and on all GPUs;
+* ``--lane-group``: our PPO also with the env stepped in groups of this many lanes per device
+  (``PPOConfig.lane_group``) wherever the lanes per device exceed it (0: never);
 * ``--brax``: lane counts of brax's PPO on one GPU (``benchmarks/peers/brax_ppo.py``; it uses every
   visible device, so it runs on a 1-GPU process: ``CUDA_VISIBLE_DEVICES`` = the first GPU).
 
@@ -46,26 +48,30 @@ def _row(env_name: str, kind: str, devices: int, r: dict[str, Any]) -> dict[str,
 def run_ours(env_name: str, args: argparse.Namespace) -> list[dict[str, Any]]:
     env = envs_mjx.make(env_name, **ENV_CONFIGS[env_name])
     n_all = len(jax.devices())
-    plan: list[tuple[str, int, int]] = [("one", 1, k) for k in args.one]
+    plan: list[tuple] = [("one", 1, k) for k in args.one]
     for per in args.weak:
         plan += [("weak", 1, per)] + ([("weak", n_all, per * n_all)] if n_all > 1 else [])
     for total in args.strong:
         plan += [("strong", 1, total)] + ([("strong", n_all, total)] if n_all > 1 else [])
-    done: dict[tuple[int, int], dict[str, Any]] = {}
+    if args.lane_group:
+        plan += [(f"{kind}, lane group {args.lane_group}", devs, lanes, args.lane_group) for kind, devs, lanes in plan
+                 if lanes // devs > args.lane_group]  # fmt: skip
+    done: dict[tuple[int, int, int], dict[str, Any]] = {}
     rows = []
-    for kind, devs, lanes in plan:
-        if (devs, lanes) not in done:
+    for kind, devs, lanes, *group in plan:
+        group = group[0] if group else 0
+        if (devs, lanes, group) not in done:
             mesh = parallel.lane_mesh(devs)
             try:
                 r = bench_ours(env, lanes, args.unroll, args.chunk_iters, args.repeats, args.updates,
-                               args.reset_refresh, mesh=mesh)  # fmt: skip
+                               args.reset_refresh, mesh=mesh, lane_group=group)  # fmt: skip
                 r["lane_map"] = parallel.lane_map_impl(mesh)
             except Exception as e:  # e.g. out of memory: recorded, the sweep goes on
                 r = {"impl": "jaxrl_robot", "lanes": lanes, "steps_per_s": float("nan"), "error": repr(e)[:400]}
-            done[(devs, lanes)] = r
-            print(f"{env_name:9s} ours {devs} GPU(s) lanes={lanes:7d} {r['steps_per_s']:14,.0f} steps/s "
-                  f"compile {r.get('compile_s', float('nan')):.1f}s", flush=True)  # fmt: skip
-        rows.append(_row(env_name, kind, devs, done[(devs, lanes)]))
+            done[(devs, lanes, group)] = r
+            print(f"{env_name:9s} ours {devs} GPU(s) lanes={lanes:7d} group={group:6d} {r['steps_per_s']:14,.0f} "
+                  f"steps/s compile {r.get('compile_s', float('nan')):.1f}s", flush=True)  # fmt: skip
+        rows.append(_row(env_name, kind, devs, done[(devs, lanes, group)]))
     return rows
 
 
@@ -106,12 +112,12 @@ def to_markdown(result: dict[str, Any]) -> str:
         "| env | kind | impl | GPUs | lanes | lanes/GPU | env-steps/s | vs 1 GPU same lanes/GPU | compile s |",
         "|---|---|---|---:|---:|---:|---:|---:|---:|",
     ]
-    one = {(r["env"], r["lanes"]): r["steps_per_s"] for r in result["runs"] if r["devices"] == 1
-           and r.get("impl") == "jaxrl_robot"}  # fmt: skip
+    one = {(r["env"], r["lanes"], r.get("lane_group", 0)): r["steps_per_s"] for r in result["runs"]
+           if r["devices"] == 1 and r.get("impl") == "jaxrl_robot"}  # fmt: skip
     for r in result["runs"]:
         d, lanes = r["devices"], r.get("lanes", 0)
         per = lanes // d if d else lanes
-        base = one.get((r["env"], per))
+        base = one.get((r["env"], per, r.get("lane_group", 0)))
         eff = f"{r['steps_per_s'] / (d * base):.2f} (x{r['steps_per_s'] / base:.2f})" if base and d > 1 else ""
         comp = r.get("compile_s", r.get("first_epoch_s", float("nan")))
         lines.append(f"| {r['env']} | {r['kind']} | {r.get('impl')} | {d} | {lanes} | {per} | "
@@ -132,6 +138,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--chunk-iters", type=int, default=4)
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--reset-refresh", type=float, default=0.125)
+    p.add_argument("--lane-group", type=int, default=0)
     p.add_argument("--out", default=RESULTS)
     p.add_argument("--brax-only", default="", help=argparse.SUPPRESS)
     args = p.parse_args(argv)

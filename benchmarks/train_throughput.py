@@ -54,12 +54,14 @@ def bench_ours(
     updates: int,
     reset_refresh: float,
     mesh: jax.sharding.Mesh | None = None,
+    lane_group: int = 0,
 ) -> dict[str, Any]:
     """Steps/s of our PPO at ``lanes`` lanes over ``mesh`` (default all devices; compile apart, median of repeats)."""
     cfg = PPOConfig(
         num_envs=lanes, unroll_length=unroll, minibatch_size=lanes * unroll // updates, actor_updates=updates,
         critic_updates=updates, batch_norm=False, sigma=(0.5,), actor_hidden=(200, 200), critic_hidden=(200, 200),
         total_steps=lanes * unroll * chunk_iters, episode_length=int(env.episode_length), reset_refresh=reset_refresh,
+        lane_group=lane_group,
     )  # fmt: skip
     trainer = make_trainer(cfg, env, mesh=mesh, iterations_per_update=chunk_iters)
     state = jax.block_until_ready(jax.jit(trainer.init)(jax.random.PRNGKey(0)))
@@ -78,6 +80,7 @@ def bench_ours(
         "lanes": lanes,
         "devices": int(mesh.devices.size) if mesh is not None else len(jax.devices()),
         "reset_refresh": reset_refresh,
+        "lane_group": lane_group,
         "unroll": unroll,
         "steps_per_call": trainer.env_steps_per_update,
         "compile_s": compile_s,

@@ -202,8 +202,14 @@ def make_trainer(
     episode_length = config.episode_length or getattr(env, "episode_length", None)
     if not episode_length:
         raise ConfigError("episode_length=0: this env has no default episode_length; set episode_length >= 1")
+    if config.lane_group and k_local % config.lane_group:
+        raise ConfigError(f"lane_group={config.lane_group} must divide the lanes per device ({k_local})")
     wrapped = wrap_for_training(
-        env, episode_length=int(episode_length), reset_refresh=config.reset_refresh, reset_group=config.reset_group
+        env,
+        episode_length=int(episode_length),
+        reset_refresh=config.reset_refresh,
+        reset_group=config.reset_group,
+        lane_group=config.lane_group,
     )
     obs_size, action_size = int(env.observation_size), int(env.action_size)
     actor, critic = make_networks(config, action_size)
