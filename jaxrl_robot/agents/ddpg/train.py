@@ -29,6 +29,13 @@ of an absorbing failure state of value ``failure_value``.
 
 The replay buffer lives in the training state on the device, so a checkpoint of the state
 resumes a run exactly.
+
+Devices: the lanes (acting, env steps, exploration noise, episode bookkeeping, HER relabelling)
+are split over the device mesh with ``parallel.shard_lanes``; each iteration's transitions are
+gathered from every device in global lane order, so the replay memory, the observation
+statistics and the learner (sampling, updates, priorities) are replicated and identical on
+every device.  Per-lane randomness is keyed by *global* lane index, so a run gives the same
+result on any number of devices (up to float summation order of the episode metrics).
 """
 
 from __future__ import annotations
@@ -44,6 +51,7 @@ from flax import struct
 
 from envs_mjx.base import EpisodeWrapper, wrap_for_training
 from envs_mjx.config import ConfigError
+from jaxrl_robot import parallel
 from jaxrl_robot.agents.ddpg.config import DDPGConfig
 from jaxrl_robot.agents.ddpg.losses import (
     actor_loss,
@@ -69,6 +77,8 @@ from jaxrl_robot.types import Metrics, Policy, RunningStats, Trainer
 
 __all__ = ["GOAL_API", "DDPGState", "make_networks", "make_noise_for", "make_train", "make_trainer"]
 
+_LANES = parallel.LANES
+
 GOAL_API = ("achieved_goal", "desired_goal", "compute_reward", "sample_goal", "in_feasible_region", "obs_from")
 
 
@@ -82,8 +92,9 @@ class DDPGState:
       target_actor_params, target_critic_params: target parameters θ^μ', θ^Q'.
       actor_opt, critic_opt: Adam states.
       replay: uniform or prioritised replay state (stored transitions, sum-tree, β).
-      env_state: ``State [B]`` of the lanes ('steps' schedule; the last cycle's for 'episodes').
-      noise_state: ``NoiseState [B, A]`` of every lane.
+      env_state: ``State [B]`` of the lanes ('steps' schedule; the last cycle's for 'episodes'),
+        split over devices.
+      noise_state: ``NoiseState [B, A]`` of every lane, split over devices.
       obs_stats: running mean and variance of the observations (used only with ``normalize_obs``).
       key: PRNG key of the run.
       iteration: ``[] int32`` iterations (cycles or unroll phases) done.
@@ -138,6 +149,17 @@ def _tree_where(cond: jax.Array, a: Any, b: Any) -> Any:
     return jax.tree.map(lambda x, y: jnp.where(cond.reshape(cond.shape + (1,) * (x.ndim - 1)), x, y), a, b)
 
 
+def _per_lane_keys(key: jax.Array, lane_ids: jax.Array) -> jax.Array:
+    """One key per lane from its global index: ``lane_ids [b] -> keys [b]`` (independent of the device count)."""
+    return jax.vmap(jax.random.fold_in, in_axes=(None, 0))(key, lane_ids)
+
+
+def _gather_time_major(tree: Any) -> Any:
+    """This device's ``[T, b, ...]`` rows -> every device's ``[T * B, ...]``, time-major in global lane order."""
+    lane_major = parallel.all_gather(jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), tree))  # [B, T, ...]
+    return jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1).reshape((-1,) + x.shape[2:]), lane_major)
+
+
 def _like(new: Any, old: Any) -> Any:
     """``new`` with the dtypes (and strong typing) of ``old``, so ``update``'s output state has
     exactly its input's types and the jitted ``update`` never recompiles (env steps may return
@@ -151,17 +173,26 @@ def _like(new: Any, old: Any) -> Any:
     return jax.tree.map(cast, new, old)
 
 
-def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | None = None) -> Trainer:
+def make_trainer(
+    config: DDPGConfig,
+    env: Env,
+    *,
+    mesh: jax.sharding.Mesh | None = None,
+    iterations_per_update: int | None = None,
+) -> Trainer:
     """Build the DDPG :class:`~jaxrl_robot.types.Trainer` for ``env``.
 
     Args:
       config: hyper-parameters (validated here).
       env: an *unbatched* env; with HER it must provide the goal-conditioned API
         (:data:`GOAL_API`) and ``state.info["ee_pos"]``.
+      mesh: device mesh from ``parallel.lane_mesh`` (default: all devices); the ``num_envs``
+        lanes are split over it, the replay memory and the learner are replicated.
       iterations_per_update: iterations per ``update`` call (default: one epoch of
         ``cycles_per_epoch`` cycles for 'episodes', 1 for 'steps').
     Raises:
       ConfigError: invalid settings, or HER on an env without the goal API.
+      ValueError: ``num_envs`` does not divide over the mesh's devices.
     """
     config.validate()
     chunk = iterations_per_update or (config.cycles_per_epoch if config.schedule == "episodes" else 1)
@@ -182,6 +213,8 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
     if episode_length < 1:
         raise ConfigError("episode_length=0: this env has no default episode_length; set episode_length >= 1")
     B, T = config.num_envs, episode_length
+    mesh = parallel.lane_mesh() if mesh is None else mesh
+    b_local = parallel.local_lane_count(B, mesh)  # lanes per device
     obs_size, action_size = int(env.observation_size), int(env.action_size)
     actor, critic = make_networks(config, action_size)
     critic_steps = config.iterations * (config.updates_per_cycle if config.schedule == "episodes"
@@ -227,11 +260,12 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
     decay_noise = config.noise_end_factor < 1.0
 
     def explore(
-        key: jax.Array, params: Any, stats: RunningStats, obs: jax.Array, nstate: NoiseState, factor: jax.Array
+        key: jax.Array, lane_ids: jax.Array, params: Any, stats: RunningStats, obs: jax.Array, nstate: NoiseState,
+        factor: jax.Array,
     ) -> tuple[jax.Array, NoiseState]:
         """``a = clip(μ(s) + f·ω, -1, 1)`` (Eq. 3.7; ``f`` the noise factor, 1 without a schedule)
-        for every lane: raw ``[B, O] -> [B, A]``."""
-        eps, nstate = jax.vmap(noise.sample)(jax.random.split(key, obs.shape[0]), nstate)
+        for this device's lanes ``lane_ids [b]``: raw ``[b, O] -> [b, A]``."""
+        eps, nstate = jax.vmap(noise.sample)(_per_lane_keys(key, lane_ids), nstate)
         if decay_noise:
             eps = factor * eps
         return jnp.clip(act(params, norm(stats, obs)) + eps, -1.0, 1.0), nstate
@@ -253,15 +287,21 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
         return critic.apply(params, obs, action)
 
     def terminal(ns: State) -> jax.Array:
-        """``d [B]``: 1 where the step ended the episode other than by the time limit (and, with
+        """``d [b]``: 1 where the step ended the episode other than by the time limit (and, with
         ``termination_metric``, where that metric is set; other ends bootstrap)."""
         term = ns.done.astype(jnp.float32) * (1.0 - ns.info["truncation"].astype(jnp.float32))
         if config.termination_metric:
             term = term * ns.metrics[config.termination_metric].astype(jnp.float32)
         return term
 
-    def fresh_noise() -> NoiseState:
-        return jax.vmap(lambda _: noise.init())(jnp.arange(B))
+    def fresh_noise(n: int) -> NoiseState:
+        """Noise processes at their start for ``n`` lanes: ``NoiseState [n, A]``."""
+        return jax.vmap(lambda _: noise.init())(jnp.arange(n))
+
+    def reset_lanes(keys: jax.Array) -> tuple[State, NoiseState]:
+        """Initial env and noise states of this device's lanes from their keys ``[b]``."""
+        env_state = jax.vmap(lane_env.reset)(keys) if lane_env is not None else batched_env.reset(keys)
+        return env_state, fresh_noise(keys.shape[0])
 
     # ---- init --------------------------------------------------------------------------
     def init(key: jax.Array) -> DDPGState:
@@ -280,8 +320,10 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
             next_obs=jnp.zeros((obs_size,), jnp.float32),
             terminated=jnp.zeros((), jnp.float32),
         )
-        keys = jax.random.split(k_env, B)
-        env_state = jax.vmap(lane_env.reset)(keys) if lane_env is not None else batched_env.reset(keys)
+        lanes = parallel.P(_LANES)
+        env_state, noise_state = parallel.shard_lanes(reset_lanes, mesh, (lanes,), (lanes, lanes))(
+            jax.random.split(k_env, B)
+        )
         return DDPGState(
             actor_params=actor_params,
             critic_params=critic_params,
@@ -291,7 +333,7 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
             critic_opt=critic_tx.init(critic_params),
             replay=replay.init(example),
             env_state=env_state,
-            noise_state=fresh_noise(),
+            noise_state=noise_state,
             obs_stats=init_running_stats(obs_size),
             key=k_run,
             iteration=jnp.zeros((), jnp.int32),
@@ -300,16 +342,18 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
 
     # ---- acting: 'episodes' schedule -----------------------------------------------------
     def run_episodes(
-        key: jax.Array, params: Any, stats: RunningStats, factor: jax.Array
+        key: jax.Array, lane_ids: jax.Array, params: Any, stats: RunningStats, factor: jax.Array
     ) -> tuple[State, Transition, jax.Array, dict]:
-        """Run B whole episodes; returns (final state, Transition [T*B*C], mask [T*B*C], episode sums)."""
+        """Run one whole episode in each of this device's lanes ``lane_ids [b]``; returns (final state
+        ``[b]``, every device's Transition ``[T*B*C]`` and mask ``[T*B*C]`` in global lane order, this
+        device's episode sums)."""
         k_reset, k_steps, k_her = jax.random.split(key, 3)
-        state0 = jax.vmap(lane_env.reset)(jax.random.split(k_reset, B))
+        state0 = jax.vmap(lane_env.reset)(_per_lane_keys(k_reset, lane_ids))
         goal_env = her is not None
 
         def body(carry, k):
             s, nstate, finished = carry
-            a, nstate = explore(k, params, stats, s.obs, nstate, factor)
+            a, nstate = explore(k, lane_ids, params, stats, s.obs, nstate, factor)
             ns = jax.vmap(lane_env.step)(s, a)
             done = ns.done.astype(jnp.float32)
             term = terminal(ns)
@@ -318,7 +362,7 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
             row = {
                 "obs": s.obs, "action": a, "reward": ns.reward, "next_obs": ns.obs, "terminated": term,
                 "failed": term * (1.0 - success), "valid": alive, "ending": alive * done,
-                "metrics": {k: v for k, v in ns.metrics.items() if v.shape == (B,)},
+                "metrics": {k: v for k, v in ns.metrics.items() if v.shape == (b_local,)},
             }
             if goal_env:
                 row["achieved"] = jax.vmap(env.achieved_goal)(ns)
@@ -326,9 +370,9 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
             # lanes keep stepping after their episode ended; those steps are masked out
             return (ns, nstate, jnp.maximum(finished, done)), row
 
-        carry = (state0, fresh_noise(), jnp.zeros((B,), jnp.float32))
+        carry = (state0, fresh_noise(b_local), jnp.zeros((b_local,), jnp.float32))
         (final, _, _), traj = jax.lax.scan(body, carry, jax.random.split(k_steps, T))
-        sums = {"episodes": jnp.asarray(B, jnp.float32)}
+        sums = {"episodes": jnp.asarray(b_local, jnp.float32)}
         sums["episode_return"] = jnp.sum(traj["valid"] * traj["reward"])
         sums["episode_length"] = jnp.sum(traj["valid"])
         for name, v in traj["metrics"].items():
@@ -336,8 +380,8 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
         if not goal_env:
             reward = traj["reward"] + fail_bonus * traj["failed"]
             tr = Transition(traj["obs"], traj["action"], reward, traj["next_obs"], traj["terminated"])
-            flat = jax.tree.map(lambda x: x.reshape(T * B, *x.shape[2:]), tr)
-            return final, flat, traj["valid"].reshape(-1) > 0, sums
+            flat, valid = _gather_time_major((tr, traj["valid"]))
+            return final, flat, valid > 0, sums
         lane_major = jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), traj)
         achieved0 = jax.vmap(env.achieved_goal)(state0)
         episodes = GoalEpisode(
@@ -348,35 +392,40 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
             ee_pos=jnp.concatenate([state0.info["ee_pos"][:, None], lane_major["ee_pos"]], axis=1),
             goal=jax.vmap(env.desired_goal)(state0),
         )
-        tr, mask, _ = jax.vmap(her.relabel)(jax.random.split(k_her, B), episodes)  # [B, T, C, ...]
+        tr, mask, _ = jax.vmap(her.relabel)(_per_lane_keys(k_her, lane_ids), episodes)  # [b, T, C, ...]
         tr = tr._replace(reward=tr.reward + fail_bonus * episodes.failed[:, :, None])  # failure is goal-independent
+        tr, mask = parallel.all_gather((tr, mask))  # [B, T, C, ...], lane-major in global lane order
         flat = jax.tree.map(lambda x: x.reshape(B * T * copies, *x.shape[3:]), tr)
         return final, flat, mask.reshape(-1), sums
 
     # ---- acting: 'steps' schedule --------------------------------------------------------
-    def run_steps(key: jax.Array, params: Any, stats: RunningStats, s: State, nstate: NoiseState, factor: jax.Array):
-        """``unroll_length`` steps of every auto-resetting lane; Transition ``[U*B]``."""
+    def run_steps(
+        key: jax.Array, lane_ids: jax.Array, params: Any, stats: RunningStats, s: State, nstate: NoiseState,
+        factor: jax.Array,
+    ) -> tuple[State, NoiseState, Transition, dict]:
+        """``unroll_length`` steps of this device's auto-resetting lanes ``lane_ids [b]``; returns their
+        states ``[b]``, every device's Transition ``[U*B]`` in global lane order and this device's
+        episode sums."""
 
         def body(carry, k):
             s, nstate = carry
-            a, nstate = explore(k, params, stats, s.obs, nstate, factor)
+            a, nstate = explore(k, lane_ids, params, stats, s.obs, nstate, factor)
             ns = batched_env.step(s, a)
             done = ns.done.astype(jnp.float32)
             term = terminal(ns)
             success = ns.metrics.get("success", jnp.zeros_like(done)).astype(jnp.float32)
             reward = ns.reward + fail_bonus * term * (1.0 - success)
             tr = Transition(s.obs, a, reward, ns.info["final_obs"], term)
-            nstate = _tree_where(done > 0, fresh_noise(), nstate)  # new episode, new noise process
+            nstate = _tree_where(done > 0, fresh_noise(b_local), nstate)  # new episode, new noise process
             ep = {"episodes": jnp.sum(done), "episode_return": jnp.sum(done * ns.info["episode_return"]),
                   "episode_length": jnp.sum(done * ns.info["episode_length"])}
             for name, v in ns.metrics.items():
-                if v.shape == (B,):
+                if v.shape == (b_local,):
                     ep[name] = jnp.sum(done * v)
             return (ns, nstate), (tr, ep)
 
         (s, nstate), (traj, ep) = jax.lax.scan(body, (s, nstate), jax.random.split(key, config.unroll_length))
-        flat = jax.tree.map(lambda x: x.reshape(-1, *x.shape[2:]), traj)
-        return s, nstate, flat, jax.tree.map(jnp.sum, ep)
+        return s, nstate, _gather_time_major(traj), jax.tree.map(jnp.sum, ep)
 
     # ---- learning ------------------------------------------------------------------------
     def priority_error(td: jax.Array) -> jax.Array:
@@ -470,18 +519,18 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
             return stats
         return update_running_stats(stats, obs, mask=mask)
 
-    # ---- one iteration, one chunk ------------------------------------------------------------
-    def iteration(state: DDPGState) -> tuple[DDPGState, tuple]:
+    # ---- one iteration, one chunk (inside shard_lanes: this device's b_local lanes) ---------
+    def iteration(state: DDPGState, lane_ids: jax.Array) -> tuple[DDPGState, tuple]:
         key, k_act, k_learn = jax.random.split(state.key, 3)
         if config.schedule == "episodes":
-            env_state, flat, mask, ep = run_episodes(k_act, state.actor_params, state.obs_stats,
+            env_state, flat, mask, ep = run_episodes(k_act, lane_ids, state.actor_params, state.obs_stats,
                                                      noise_factor(state.iteration))
             buf = replay.add(state.replay, flat, mask=mask)
             state = state.replace(env_state=env_state, replay=buf, obs_stats=observe(state.obs_stats, flat.obs, mask))
             n_updates = config.updates_per_cycle
         else:
-            env_state, nstate, flat, ep = run_steps(k_act, state.actor_params, state.obs_stats, state.env_state,
-                                                    state.noise_state, noise_factor(state.iteration))
+            env_state, nstate, flat, ep = run_steps(k_act, lane_ids, state.actor_params, state.obs_stats,
+                                                    state.env_state, state.noise_state, noise_factor(state.iteration))
             state = state.replace(env_state=env_state, noise_state=nstate, replay=replay.add(state.replay, flat),
                                   obs_stats=observe(state.obs_stats, flat.obs, None))
             n_updates = config.updates_per_iteration
@@ -489,14 +538,15 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
         state = state.replace(key=key, iteration=state.iteration + 1)
         return state, (sums, count, ep)
 
-    def update(state: DDPGState) -> tuple[DDPGState, Metrics]:
+    def chunk_fn(state: DDPGState) -> tuple[DDPGState, Metrics]:
         start = state
-        state, (sums, count, ep) = jax.lax.scan(lambda s, _: iteration(s), state, None, length=chunk)
+        lane_ids = parallel.global_lane_ids(b_local)
+        state, (sums, count, ep) = jax.lax.scan(lambda s, _: iteration(s, lane_ids), state, None, length=chunk)
         state = _like(state, start)
         n = jnp.sum(count)
         # means over the chunk's updates; 0 before learning starts (``updates`` says how many ran)
         out: dict[str, jax.Array] = {k: jnp.sum(v) / jnp.maximum(n, 1.0) for k, v in sums.items()}
-        ep = jax.tree.map(jnp.sum, ep)
+        ep = parallel.psum(jax.tree.map(jnp.sum, ep))  # every device's lanes
         episodes = ep.pop("episodes")
         out["episodes"] = episodes
         for k, v in ep.items():
@@ -506,6 +556,24 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
         if config.per:
             out["beta"] = state.replay.beta
         return state, out
+
+    lanes, same = parallel.P(_LANES), parallel.P()
+    state_specs = DDPGState(
+        actor_params=same,
+        critic_params=same,
+        target_actor_params=same,
+        target_critic_params=same,
+        actor_opt=same,
+        critic_opt=same,
+        replay=same,
+        env_state=lanes,
+        noise_state=lanes,
+        obs_stats=same,
+        key=same,
+        iteration=same,
+        updates=same,
+    )
+    update = parallel.shard_lanes(chunk_fn, mesh, in_specs=(state_specs,), out_specs=(state_specs, same))
 
     def policy(state: DDPGState) -> Policy:
         def greedy(obs: jax.Array) -> jax.Array:
@@ -523,10 +591,17 @@ def make_trainer(config: DDPGConfig, env: Env, *, iterations_per_update: int | N
 
 
 def make_train(
-    config: DDPGConfig, env: Env, *, iterations_per_update: int | None = None
+    config: DDPGConfig,
+    env: Env,
+    *,
+    mesh: jax.sharding.Mesh | None = None,
+    iterations_per_update: int | None = None,
 ) -> Callable[[jax.Array], tuple[DDPGState, Metrics]]:
-    """``train(key) -> (final state, metrics [num_updates])``: the whole run, pure and jittable."""
-    trainer = make_trainer(config, env, iterations_per_update=iterations_per_update)
+    """``train(key) -> (final state, metrics [num_updates])``: the whole run, pure and jittable.
+
+    ``mesh``: as :func:`make_trainer` (default: all devices).
+    """
+    trainer = make_trainer(config, env, mesh=mesh, iterations_per_update=iterations_per_update)
 
     def train(key: jax.Array) -> tuple[DDPGState, Metrics]:
         state = trainer.init(key)
