@@ -13,6 +13,7 @@ from typing import Any
 from envs_mjx import xla as _xla
 
 _xla.configure()  # before the first JAX computation: keeps MJX physics fast on XLA:CPU (envs_mjx/xla.py)
+_xla.import_mjx_quietly()  # without the two "Failed to import warp" lines of MJX's optional Warp backend
 
 from envs_mjx.base import (  # noqa: E402
     AutoResetWrapper,

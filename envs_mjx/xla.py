@@ -28,15 +28,18 @@ What this package does about it:
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
+import io
 import os
 import pkgutil
+import sys
 from collections.abc import Callable
 from typing import Any
 
 import jax
 
-__all__ = ["CPU_FLAG", "OPT_OUT_ENV", "compiler_options", "configure", "flag_active", "jit"]
+__all__ = ["CPU_FLAG", "OPT_OUT_ENV", "compiler_options", "configure", "flag_active", "import_mjx_quietly", "jit"]
 
 CPU_FLAG = "--xla_disable_hlo_passes=algsimp"
 OPT_OUT_ENV = "ENVS_MJX_XLA_CPU_FIX"
@@ -95,3 +98,26 @@ def jit(fun: Callable, **kwargs: Any) -> Callable:
     """``jax.jit(fun, **kwargs)`` with :func:`compiler_options` merged in (CPU only)."""
     options = {**compiler_options(), **kwargs.pop("compiler_options", {})}
     return jax.jit(fun, compiler_options=options or None, **kwargs)
+
+
+_WARP_PROBE_LINES = ("Failed to import warp:", "Failed to import mujoco_warp:")
+
+
+def import_mjx_quietly() -> None:
+    """Import ``mujoco.mjx`` without the lines its optional Warp backend prints when Warp is absent.
+
+    ``mujoco.mjx.warp`` probes for the ``warp`` package at import and *prints* (not logs)
+    ``Failed to import warp: ...`` and ``Failed to import mujoco_warp: ...`` when it is not
+    installed; MJX's JAX backend, the one this package uses, does not need it. Only those two
+    lines are dropped; anything else printed during the import is passed on, and an import error
+    is raised as usual. Does nothing if ``mujoco.mjx`` is already imported.
+    """
+    if "mujoco.mjx" in sys.modules:
+        return
+    buf = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(buf):
+            import mujoco.mjx  # noqa: F401
+    finally:
+        kept = [line for line in buf.getvalue().splitlines(True) if not line.startswith(_WARP_PROBE_LINES)]
+        sys.stdout.write("".join(kept))
