@@ -116,12 +116,7 @@ class ScaraConfig:
                     f"ref_center[{i}] ± ref_amplitude[{i}] = [{c - a:g}, {c + a:g}] leaves the {joint} range "
                     f"[{lo:g}, {hi:g}]; reduce ref_amplitude or move ref_center"
                 )
-        check_range("dt", self.dt, 0.0, lo_open=True)
-        if self.duration is not None:
-            check_range("duration", self.duration, 0.0, lo_open=True)
-        if self.max_steps is not None:
-            check_range("max_steps", self.max_steps, 1)
-        check_range("n_substeps", self.n_substeps, 1)
+        tracking.check_timing(self)
         check_vector("action_scale", self.action_scale, 3, lo=0.0)
         if min(self.action_scale) <= 0.0:
             raise ConfigError(f"action_scale={self.action_scale!r} must be positive in every element")
@@ -129,11 +124,7 @@ class ScaraConfig:
         check_vector("kd", self.kd, 3, lo=0.0)
         check_range("reward_coef", self.reward_coef, 0.0, lo_open=True)
         check_range("obs_error_scale", self.obs_error_scale, 0.0, lo_open=True)
-        check_vector("rsi", self.rsi, 2, lo=0.0, hi=1.0)
-        if self.rsi[0] > self.rsi[1]:
-            raise ConfigError(f"rsi={self.rsi!r} must satisfy start_lo <= start_hi")
-        check_range("et_threshold", self.et_threshold, 0.0)
-        check_range("et_limit", self.et_limit, 0.0)
+        tracking.check_episode(self)
 
     def resolved(self) -> ScaraConfig:
         """This config with ``duration`` and ``max_steps`` filled in (and checked to agree)."""
@@ -199,17 +190,13 @@ class Scara(tracking.TrackingEnv):
     Config = ScaraConfig
     axis_names = ("x", "y", "z")
     wrap_axes = (False, False, False)
+    build_model = staticmethod(build_model)
 
     def __init__(self, config: ScaraConfig | None = None, **overrides: Any):
         super().__init__(config, **overrides)
-        self.config = self.config.resolved()
         cfg = self.config
-        self.mj_model = build_model(cfg)
-        self.mjx_model = mjx.put_model(self.mj_model)
-        self._data0 = mjx.make_data(self.mjx_model)
         self._lo = jnp.asarray(cfg.joint_lo, jnp.float32)
         self._hi = jnp.asarray(cfg.joint_hi, jnp.float32)
-        self._scale = jnp.asarray(cfg.action_scale, jnp.float32)
         self._xy_scale = cfg.l1 + cfg.l2
         self._z_mid = cfg.height - 0.5 * (cfg.joint_lo[2] + cfg.joint_hi[2])
         self._z_half = 0.5 * (cfg.joint_hi[2] - cfg.joint_lo[2])
@@ -278,33 +265,16 @@ class Scara(tracking.TrackingEnv):
     # -------------------------------------------------------------------- api
     def reset(self, rng: jax.Array, params: Mapping[str, Any] | None = None) -> State:
         """Start on the reference state (joint positions and rates) of a step drawn by RSI."""
-        p = tracking.make_params(self.default_params(), params)
-        k0 = tracking.rsi_index(rng, p, self.max_steps)
+        p, k0 = self._start(rng, params)
         r = self.joint_reference(k0)
         data = self._data0.replace(qpos=r.q, qvel=r.qd, ctrl=r.q)
         ee = self.forward_kinematics(r.q)
         ref_pos, ref_vel = self.reference(k0)
         err = ref_pos - ee
         zero = jnp.zeros((), jnp.float32)
-        info = {
-            "params": p,
-            "k": k0,
-            "t": k0.astype(jnp.float32) * self.config.dt,
-            "q": r.q,
-            "ee_pos": ee,
-            "ref_pos": ref_pos,
-            "ref_vel": ref_vel,
-            "et_count": zero,
-            "terminated": zero,
-            "ref_end": zero,
-        }
-        return State(
-            pipeline_state=data,
-            obs=self._obs(r.q, ee, err),
-            reward=zero,
-            done=zero,
-            metrics=self._metrics(zero, err, zero, zero, zero),
-            info=info,
+        metrics = self._metrics(zero, err, zero, zero, zero)
+        return self._first_state(
+            data, self._obs(r.q, ee, err), metrics, p, k0, q=r.q, ee_pos=ee, ref_pos=ref_pos, ref_vel=ref_vel
         )
 
     def step(self, state: State, action: jax.Array) -> State:
@@ -316,36 +286,14 @@ class Scara(tracking.TrackingEnv):
         data = data.replace(ctrl=target)
         data = jax.lax.fori_loop(0, cfg.n_substeps, lambda _, d: mjx.step(self.mjx_model, d), data)
 
-        info = dict(state.info)
-        k = jnp.minimum(info["k"] + 1, self.max_steps)
+        k = self._next_k(state)
         q = data.qpos
         ee = self.forward_kinematics(q)
         ref_pos, ref_vel = self.reference(k)
         err = ref_pos - ee
         r_track = scara_reward(err, cfg.reward_coef)
-        finished = jnp.maximum(info["terminated"], (info["k"] >= self.max_steps).astype(jnp.float32))
-        et_count, terminated = tracking.early_termination(
-            info["et_count"], info["terminated"], jnp.linalg.norm(err), cfg.et_threshold, info["params"]["et_limit"]
-        )
-        ref_end = (k >= self.max_steps).astype(jnp.float32)
-        reward = jnp.where((terminated > 0) | (finished > 0), 0.0, r_track)
-        done = jnp.maximum(terminated, ref_end)
-        info.update(
-            k=k,
-            t=k.astype(jnp.float32) * cfg.dt,
-            q=q,
-            ee_pos=ee,
-            ref_pos=ref_pos,
-            ref_vel=ref_vel,
-            et_count=et_count,
-            terminated=terminated,
-            ref_end=ref_end,
-        )
-        return state.replace(
-            pipeline_state=data,
-            obs=self._obs(q, ee, err),
-            reward=reward,
-            done=done,
-            metrics=self._metrics(r_track, err, et_count, terminated, invalid),
-            info=info,
-        )
+        reward, done, counters = self._end_of_step(state, k, jnp.linalg.norm(err), r_track)
+        metrics = self._metrics(r_track, err, counters["et_count"], counters["terminated"], invalid)
+        obs = self._obs(q, ee, err)
+        info = dict(q=q, ee_pos=ee, ref_pos=ref_pos, ref_vel=ref_vel, **counters)
+        return self._next_state(state, data, obs, reward, done, metrics, k, **info)

@@ -18,7 +18,11 @@
 
 A tracking environment provides ``max_steps`` (control steps of the reference), ``axis_names``
 (three tracked axes), ``wrap_axes`` (which axes are angles) and, in ``state.info``, ``ee_pos`` and
-``ref_pos`` (``[3]`` each, on those axes) and the step index ``k``.
+``ref_pos`` (``[3]`` each, on those axes) and the step index ``k``.  :class:`TrackingEnv` holds
+what ``scara`` and ``unicycle`` share: the MJX model built from the resolved config, the start of
+an episode (parameters, RSI step, the info every tracking state carries) and the end of a step
+(early-termination counter, reference end, zeroed reward, ``done``); :func:`check_timing` and
+:func:`check_episode` validate the config fields they share.
 """
 
 from __future__ import annotations
@@ -31,14 +35,17 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+from mujoco import mjx
 
-from envs_mjx.base import RobotEnv
-from envs_mjx.config import ConfigError
+from envs_mjx.base import RobotEnv, State
+from envs_mjx.config import ConfigError, check_range, check_vector
 
 __all__ = [
     "TrackingEnv",
     "PARAM_KEYS",
     "axis_errors",
+    "check_episode",
+    "check_timing",
     "early_termination",
     "make_params",
     "resolve_length",
@@ -56,9 +63,25 @@ PARAM_KEYS = ("start_lo", "start_hi", "et_limit")
 class TrackingEnv(RobotEnv):
     """Shared part of the trajectory-tracking environments (``scara``, ``unicycle``).
 
-    Subclasses set ``self._scale`` (the scale vector C) in ``__init__``; their config has
-    ``dt``, ``max_steps``, ``rsi`` (default RSI window) and ``et_limit``.
+    Subclasses set ``build_model`` (``config -> mujoco.MjModel``, a staticmethod); their config
+    has ``dt``, ``duration``, ``max_steps``, ``n_substeps``, ``action_scale`` (the scale vector C),
+    ``rsi`` (default RSI window), ``et_threshold``, ``et_limit`` and a ``resolved()`` that fills in
+    the derived lengths (and any default C).
+
+    ``state.info`` of every tracking env holds ``params``, ``k`` (control step of the reference),
+    ``t = k · dt``, the env's own entries, then ``et_count``, ``terminated`` and ``ref_end``
+    (float32 0/1): :meth:`_first_state` and :meth:`_next_state` write them in that order.
     """
+
+    build_model: Callable[[Any], Any]
+
+    def __init__(self, config: Any | None = None, **overrides: Any):
+        super().__init__(config, **overrides)
+        self.config = self.config.resolved()
+        self.mj_model = self.build_model(self.config)
+        self.mjx_model = mjx.put_model(self.mj_model)
+        self._data0 = mjx.make_data(self.mjx_model)
+        self._scale = jnp.asarray(self.config.action_scale, jnp.float32)
 
     @property
     def action_scale(self) -> jax.Array:
@@ -77,6 +100,88 @@ class TrackingEnv(RobotEnv):
         """RSI window and early-termination limit from the config (schedulable per episode)."""
         cfg = self.config
         return make_params({"start_lo": cfg.rsi[0], "start_hi": cfg.rsi[1], "et_limit": cfg.et_limit})
+
+    def _start(self, rng: jax.Array, params: Mapping[str, Any] | None) -> tuple[dict[str, jax.Array], jax.Array]:
+        """Episode parameters (the defaults updated by ``params``) and the start step ``k0`` drawn by RSI."""
+        p = make_params(self.default_params(), params)
+        return p, rsi_index(rng, p, self.max_steps)
+
+    def _first_state(
+        self, data: Any, obs: jax.Array, metrics: dict, params: dict, k0: jax.Array, **info: jax.Array
+    ) -> State:
+        """The state at reset: zero reward and ``done``, counters at zero, ``info`` as in the class docstring."""
+        zero = jnp.zeros((), jnp.float32)
+        info = {
+            "params": params,
+            "k": k0,
+            "t": k0.astype(jnp.float32) * self.config.dt,
+            **info,
+            "et_count": zero,
+            "terminated": zero,
+            "ref_end": zero,
+        }
+        return State(pipeline_state=data, obs=obs, reward=zero, done=zero, metrics=metrics, info=info)
+
+    def _next_k(self, state: State) -> jax.Array:
+        """The step scored by this control step, ``min(k + 1, max_steps)``."""
+        return jnp.minimum(state.info["k"] + 1, self.max_steps)
+
+    def _end_of_step(
+        self, state: State, k: jax.Array, pos_error: jax.Array, reward: jax.Array
+    ) -> tuple[jax.Array, jax.Array, dict[str, jax.Array]]:
+        """Early termination and the end of the reference after a step to ``k`` (thesis §3.5.2).
+
+        Args:
+          state: the state before the step; k: from :meth:`_next_k`; pos_error: Euclidean
+            position error after the step; reward: the step's tracking reward.
+        Returns:
+          ``(reward, done, counters)``: the reward, zero from the step that triggers early
+          termination on and after the reference's end; ``done = max(terminated, ref_end)``;
+          ``counters = {"et_count", "terminated", "ref_end"}`` for ``info``.
+        """
+        info = state.info
+        finished = jnp.maximum(info["terminated"], (info["k"] >= self.max_steps).astype(jnp.float32))
+        et_count, terminated = early_termination(
+            info["et_count"], info["terminated"], pos_error, self.config.et_threshold, info["params"]["et_limit"]
+        )
+        ref_end = (k >= self.max_steps).astype(jnp.float32)
+        reward = jnp.where((terminated > 0) | (finished > 0), 0.0, reward)
+        counters = {"et_count": et_count, "terminated": terminated, "ref_end": ref_end}
+        return reward, jnp.maximum(terminated, ref_end), counters
+
+    def _next_state(
+        self,
+        state: State,
+        data: Any,
+        obs: jax.Array,
+        reward: jax.Array,
+        done: jax.Array,
+        metrics: dict,
+        k: jax.Array,
+        **info: jax.Array,
+    ) -> State:
+        """``state`` after a step to ``k``; ``info`` entries (and ``k``, ``t``) replaced by the keywords."""
+        info = {**state.info, "k": k, "t": k.astype(jnp.float32) * self.config.dt, **info}
+        return state.replace(pipeline_state=data, obs=obs, reward=reward, done=done, metrics=metrics, info=info)
+
+
+def check_timing(cfg: Any) -> None:
+    """Validate the shared timing fields ``dt``, ``duration``, ``max_steps`` and ``n_substeps``."""
+    check_range("dt", cfg.dt, 0.0, lo_open=True)
+    if cfg.duration is not None:
+        check_range("duration", cfg.duration, 0.0, lo_open=True)
+    if cfg.max_steps is not None:
+        check_range("max_steps", cfg.max_steps, 1)
+    check_range("n_substeps", cfg.n_substeps, 1)
+
+
+def check_episode(cfg: Any) -> None:
+    """Validate the default RSI window ``rsi`` and the early-termination ``et_threshold`` and ``et_limit``."""
+    check_vector("rsi", cfg.rsi, 2, lo=0.0, hi=1.0)
+    if cfg.rsi[0] > cfg.rsi[1]:
+        raise ConfigError(f"rsi={cfg.rsi!r} must satisfy start_lo <= start_hi")
+    check_range("et_threshold", cfg.et_threshold, 0.0)
+    check_range("et_limit", cfg.et_limit, 0.0)
 
 
 def make_params(

@@ -151,12 +151,7 @@ class UnicycleConfig:
         check_choice("mode", self.mode, MODES)
         check_choice("observation", self.observation, OBSERVATIONS)
         check_choice("trajectory", self.trajectory, PLANAR_TRAJECTORIES)
-        check_range("dt", self.dt, 0.0, lo_open=True)
-        if self.duration is not None:
-            check_range("duration", self.duration, 0.0, lo_open=True)
-        if self.max_steps is not None:
-            check_range("max_steps", self.max_steps, 1)
-        check_range("n_substeps", self.n_substeps, 1)
+        tracking.check_timing(self)
         if self.action_scale is not None:
             check_vector("action_scale", self.action_scale, 2)
             if min(self.action_scale) <= 0.0:
@@ -171,11 +166,7 @@ class UnicycleConfig:
             check_vector("obs_pos_scale", self.obs_pos_scale, 2)
             if min(self.obs_pos_scale) <= 0.0:
                 raise ConfigError(f"obs_pos_scale={self.obs_pos_scale!r} must be positive in every element")
-        check_vector("rsi", self.rsi, 2, lo=0.0, hi=1.0)
-        if self.rsi[0] > self.rsi[1]:
-            raise ConfigError(f"rsi={self.rsi!r} must satisfy start_lo <= start_hi")
-        check_range("et_threshold", self.et_threshold, 0.0)
-        check_range("et_limit", self.et_limit, 0.0)
+        tracking.check_episode(self)
 
     def resolved(self) -> UnicycleConfig:
         """This config with ``duration``, ``max_steps`` and ``action_scale`` filled in."""
@@ -253,15 +244,11 @@ class Unicycle(tracking.TrackingEnv):
     Config = UnicycleConfig
     axis_names = ("x", "y", "theta")
     wrap_axes = (False, False, True)
+    build_model = staticmethod(build_model)
 
     def __init__(self, config: UnicycleConfig | None = None, **overrides: Any):
         super().__init__(config, **overrides)
-        self.config = self.config.resolved()
         cfg = self.config
-        self.mj_model = build_model(cfg)
-        self.mjx_model = mjx.put_model(self.mj_model)
-        self._data0 = mjx.make_data(self.mjx_model)
-        self._scale = jnp.asarray(cfg.action_scale, jnp.float32)
         if cfg.obs_pos_scale is None:
             ref = jax.jit(jax.vmap(lambda k: self.reference(k).pos))(jnp.arange(cfg.max_steps + 1))
             extent = np.maximum(np.max(np.abs(np.asarray(ref[:, :2])), axis=0), 1.0)
@@ -368,35 +355,25 @@ class Unicycle(tracking.TrackingEnv):
     def reset(self, rng: jax.Array, params: Mapping[str, Any] | None = None) -> State:
         """Start on the reference pose and velocity of a step drawn by RSI."""
         cfg = self.config
-        p = tracking.make_params(self.default_params(), params)
-        k0 = tracking.rsi_index(rng, p, self.max_steps)
+        p, k0 = self._start(rng, params)
         ref = self.reference(k0)
         data = self._data0.replace(qpos=ref.pos, qvel=ref.vel)
         pose, vel = ref.pos, ref.vel
         pos_err, vel_err = self._errors(ref, pose, vel)
         zero = jnp.zeros((), jnp.float32)
-        info = {
-            "params": p,
-            "k": k0,
-            "t": k0.astype(jnp.float32) * cfg.dt,
-            "pose": pose,
-            "ee_pos": pose,
-            "vel": vel,
-            "ref_pos": ref.pos,
-            "ref_vel": ref.vel,
-            "wheel_speed": wheel_speeds(ref.cmd[0], ref.cmd[1], cfg.wheel_radius, cfg.half_axle),
-            "wheel_torque": jnp.zeros(2, jnp.float32),
-            "et_count": zero,
-            "terminated": zero,
-            "ref_end": zero,
-        }
-        return State(
-            pipeline_state=data,
-            obs=self._obs(pose, vel, pos_err, vel_err, k0),
-            reward=zero,
-            done=zero,
-            metrics=self._metrics(zero, zero, ref, pose, zero, zero, zero, zero),
-            info=info,
+        return self._first_state(
+            data,
+            self._obs(pose, vel, pos_err, vel_err, k0),
+            self._metrics(zero, zero, ref, pose, zero, zero, zero, zero),
+            p,
+            k0,
+            pose=pose,
+            ee_pos=pose,
+            vel=vel,
+            ref_pos=ref.pos,
+            ref_vel=ref.vel,
+            wheel_speed=wheel_speeds(ref.cmd[0], ref.cmd[1], cfg.wheel_radius, cfg.half_axle),
+            wheel_torque=jnp.zeros(2, jnp.float32),
         )
 
     def step(self, state: State, action: jax.Array) -> State:
@@ -406,8 +383,7 @@ class Unicycle(tracking.TrackingEnv):
         cmd = self._scale * a
         data, tau = self._advance(state.pipeline_state, cmd)
 
-        info = dict(state.info)
-        k = jnp.minimum(info["k"] + 1, self.max_steps)
+        k = self._next_k(state)
         ref = self.reference(k)
         pose, vel = data.qpos, data.qvel
         v, w, lateral = _body_speed(pose, vel)
@@ -415,16 +391,15 @@ class Unicycle(tracking.TrackingEnv):
             lateral = jnp.zeros_like(lateral)  # the Euler update moves along the heading it used (Eq. 3.17)
         pos_err, vel_err = self._errors(ref, pose, vel)
         r, r_p, r_v = unicycle_reward(pos_err, vel_err, cfg.omega_p, cfg.omega_v, cfg.a_p, cfg.a_v)
-        finished = jnp.maximum(info["terminated"], (info["k"] >= self.max_steps).astype(jnp.float32))
-        et_count, terminated = tracking.early_termination(
-            info["et_count"], info["terminated"], jnp.linalg.norm(pos_err[:2]), cfg.et_threshold,
-            info["params"]["et_limit"],
-        )
-        ref_end = (k >= self.max_steps).astype(jnp.float32)
-        reward = jnp.where((terminated > 0) | (finished > 0), 0.0, r)
-        info.update(
-            k=k,
-            t=k.astype(jnp.float32) * cfg.dt,
+        reward, done, counters = self._end_of_step(state, k, jnp.linalg.norm(pos_err[:2]), r)
+        return self._next_state(
+            state,
+            data,
+            self._obs(pose, vel, pos_err, vel_err, k),
+            reward,
+            done,
+            self._metrics(r_p, r_v, ref, pose, lateral, counters["et_count"], counters["terminated"], invalid),
+            k,
             pose=pose,
             ee_pos=pose,
             vel=vel,
@@ -432,15 +407,5 @@ class Unicycle(tracking.TrackingEnv):
             ref_vel=ref.vel,
             wheel_speed=wheel_speeds(v, w, cfg.wheel_radius, cfg.half_axle),
             wheel_torque=tau,
-            et_count=et_count,
-            terminated=terminated,
-            ref_end=ref_end,
-        )
-        return state.replace(
-            pipeline_state=data,
-            obs=self._obs(pose, vel, pos_err, vel_err, k),
-            reward=reward,
-            done=jnp.maximum(terminated, ref_end),
-            metrics=self._metrics(r_p, r_v, ref, pose, lateral, et_count, terminated, invalid),
-            info=info,
+            **counters,
         )
