@@ -28,6 +28,7 @@ observation normalisation keeps a :class:`~jaxrl_robot.types.RunningStats`
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -35,6 +36,7 @@ import chex
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxrl_robot.types import RunningStats
 
@@ -54,7 +56,8 @@ __all__ = [
     "update_running_stats",
 ]
 
-_LOG_2PI = jnp.log(2.0 * jnp.pi)
+_LOG_2PI = float(np.float32(math.log(2.0 * math.pi)))
+"""log(2π) rounded to float32, as a Python float (weakly typed; no JAX computation at import)."""
 
 BN_MODES = ("renorm", "batch")
 
