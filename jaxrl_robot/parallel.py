@@ -223,7 +223,7 @@ def initialize_multihost(
     asked = any(v is not None for v in (coordinator_address, num_processes, process_id))
     if not (asked or os.environ.get("JAX_COORDINATOR_ADDRESS") or _cluster_processes() > 1):
         return False
-    if jax.config.read("jax_cpu_collectives_implementation") is None:
+    if getattr(jax.config, "jax_cpu_collectives_implementation", "gloo") is None:
         jax.config.update("jax_cpu_collectives_implementation", "gloo")
     jax.distributed.initialize(coordinator_address, num_processes, process_id, **kwargs)
     return jax.process_count() > 1
