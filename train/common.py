@@ -14,7 +14,12 @@ jits and drives:
 * ``policy(state) -> obs -> action``: the deterministic action for evaluation;
 * ``num_updates`` chunks make the run; ``env_steps_per_update`` env steps each.
 
-The CLI then calls :func:`run` with a :class:`RunSpec`. :func:`run`:
+The algorithm's command line is an :class:`AlgorithmCLI`: an ``Args`` dataclass that extends
+:class:`RunOptions` (the options every algorithm shares) with the algorithm's hyper-parameters,
+the preset that gives their defaults and how the trainer is built. :func:`cli_main` joins the
+processes of a run over several hosts, parses (the preset's defaults for ``--env`` first;
+``--resume DIR`` reloads the run's ``config.json``), builds and calls :func:`run` with a
+:class:`RunSpec`. :func:`run`:
 
 1. makes ``runs/<algo>-<env>-<time>/`` and writes ``config.json`` (the CLI's full config,
    enough to rebuild the run — ``--resume DIR`` reloads it with :func:`load_config`);
@@ -31,37 +36,65 @@ The CLI then calls :func:`run` with a :class:`RunSpec`. :func:`run`:
    prints a table, writes ``eval.json`` and draws the figures (``*.png``). The test-episode
    program is compiled in a background thread while training runs, so evaluation at the end
    costs only its run time.
+
+Several processes
+-----------------
+With ``--coordinator``/``--num-processes``/``--process-id``, ``$JAX_COORDINATOR_ADDRESS`` or a
+cluster launch that JAX detects (SLURM, Open MPI, Kubernetes), :func:`cli_main` calls
+``jaxrl_robot.parallel.initialize_multihost`` before any JAX computation; the lane mesh then
+spans the devices of every process and every process runs the same program. Process 0 alone
+chooses the run directory (its name is broadcast to the others), writes ``config.json``,
+``metrics.csv``, TensorBoard events, the figures and ``eval.json``, and prints. Checkpoints are
+orbax's multi-process checkpoints: every process writes its own shards of the state into the
+same ``checkpoints/<chunk>/`` (so the run directory must be on a filesystem every host sees)
+and every process restores its shards on ``--resume``. The final policy is evaluated by every
+process on its own devices from its copy of the replicated parameters (identical results).
 """
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import json
 import math
 import os
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
 
 import jax
 import numpy as np
+import tyro
 from brax.envs.base import Env
+from jax.sharding import Mesh
 
+from jaxrl_robot import parallel
 from jaxrl_robot.checkpoint import Checkpointer
 from jaxrl_robot.evaluation import run_test_episodes, summarize_episodes, tracking_error_sums
 from jaxrl_robot.logging import MetricsLogger, read_csv
 from jaxrl_robot.plots import plot_tracking, plot_training_curves
 from jaxrl_robot.types import Trainer
+from train.presets import resolve_preset
 
 __all__ = [
+    "AlgorithmCLI",
     "NonFiniteLossError",
+    "RunOptions",
     "RunSpec",
+    "cli_main",
+    "env_overrides",
+    "episode_length",
     "evaluate",
+    "is_main_process",
     "is_tracking_env",
+    "iterations_per_chunk",
+    "lane_mesh",
     "load_config",
+    "make_env",
     "make_run_dir",
+    "preparse",
     "run",
     "use_progress_bar",
 ]
@@ -114,8 +147,63 @@ def use_progress_bar() -> bool:
     return sys.stdout.isatty() and not os.environ.get("CI")
 
 
+def is_main_process() -> bool:
+    """Whether this is process 0 of the run (the only process of a one-process run)."""
+    return jax.process_index() == 0
+
+
+def _say(message: str) -> None:
+    """Print on process 0 only."""
+    if is_main_process():
+        print(message, flush=True)
+
+
+def _broadcast_text(text: str) -> str:
+    """Process 0's ``text`` on every process (a collective: every process calls it)."""
+    from jax.experimental import multihost_utils
+
+    data = np.frombuffer(text.encode(), np.uint8) if is_main_process() else np.zeros(0, np.uint8)
+    size = int(multihost_utils.broadcast_one_to_all(np.int32(data.size)))
+    buf = data if is_main_process() else np.zeros(size, np.uint8)
+    return bytes(np.asarray(multihost_utils.broadcast_one_to_all(buf), np.uint8)).decode()
+
+
+def _local_view(tree: Any) -> Any:
+    """``tree`` as arrays of this process: leaves every device holds whole → a copy on a local device,
+    leaves split over several processes → None. With one process ``tree`` is returned as it is."""
+
+    def local(x: Any) -> Any:
+        if not isinstance(x, jax.Array) or x.is_fully_addressable:
+            return x
+        return x.addressable_data(0) if x.is_fully_replicated else None
+
+    return jax.tree.map(local, tree)
+
+
+def _to_host(tree: Any) -> Any:
+    """Every leaf as a NumPy array of its global value, also for arrays that span several processes
+    (split ones are gathered: a collective, so every process calls it)."""
+    from jax.experimental import multihost_utils
+
+    def fetch(x: Any) -> np.ndarray:
+        if isinstance(x, jax.Array) and not x.is_fully_addressable and not x.is_fully_replicated:
+            return np.asarray(multihost_utils.process_allgather(x, tiled=True))
+        return np.asarray(x)
+
+    return jax.tree.map(fetch, tree)
+
+
 def make_run_dir(out: str, algo: str, env_name: str) -> str:
-    """Create ``out/<algo>-<env>-<YYYYmmdd-HHMMSS>`` (a numeric suffix if it exists)."""
+    """Create ``out/<algo>-<env>-<YYYYmmdd-HHMMSS>`` (a numeric suffix if it exists).
+
+    With several processes only process 0 creates it; every process gets its name.
+    """
+    if jax.process_count() > 1:
+        return _broadcast_text(_new_run_dir(out, algo, env_name) if is_main_process() else "")
+    return _new_run_dir(out, algo, env_name)
+
+
+def _new_run_dir(out: str, algo: str, env_name: str) -> str:
     stamp = time.strftime("%Y%m%d-%H%M%S")
     base = os.path.join(out, f"{algo}-{env_name.replace(':', '_')}-{stamp}")
     path, i = base, 1
@@ -197,7 +285,8 @@ def compile_evaluation_async(
     """Compile ``(key, state) -> run_test_episodes(...)`` of ``spec.trainer.policy(state)`` in a thread.
 
     Returns a future of the compiled function, or None for tracking envs (their test episode
-    is compiled when it runs). The thread overlaps XLA compilation with training.
+    is compiled when it runs). The thread overlaps XLA compilation with training. ``state`` is
+    this process's view of the state (:func:`_local_view`): the evaluation runs on local devices.
     """
     if is_tracking_env(spec.env):
         return None
@@ -281,11 +370,12 @@ def run(spec: RunSpec) -> dict[str, Any]:
       NonFiniteLossError: a loss became NaN/inf (the last good state is checkpointed first).
     """
     trainer = spec.trainer
+    main = is_main_process()
     resuming = spec.run_dir is not None
     run_dir = spec.run_dir if resuming else make_run_dir(spec.out, spec.algo, spec.env_name)
-    if not resuming:
+    if not resuming and main:
         _write_json(os.path.join(run_dir, "config.json"), spec.config)
-    print(f"run directory: {run_dir}", flush=True)
+    _say(f"run directory: {run_dir}")
 
     t0 = time.perf_counter()
     state = jax.jit(trainer.init)(jax.random.PRNGKey(spec.seed))
@@ -297,19 +387,19 @@ def run(spec: RunSpec) -> dict[str, Any]:
             raise FileNotFoundError(f"--resume {run_dir!r}: no checkpoint to resume from")
         state, record = ckpt.restore(step, state)
         chunk, wall_before = int(record["chunk"]), float(record.get("wall_s", 0.0))
-        print(f"resumed at chunk {chunk} ({chunk * trainer.env_steps_per_update} env steps)", flush=True)
+        _say(f"resumed at chunk {chunk} ({chunk * trainer.env_steps_per_update} env steps)")
     steps_per = trainer.env_steps_per_update
-    logger = MetricsLogger(run_dir, keep_until_step=chunk * steps_per if resuming else None)
+    logger = MetricsLogger(run_dir, keep_until_step=chunk * steps_per if resuming else None) if main else None
     update = jax.jit(trainer.update)
     total_steps = trainer.num_updates * steps_per
     stop_chunk = trainer.num_updates
     if spec.stop_after_steps > 0:
         stop_chunk = min(stop_chunk, max(chunk + 1, math.ceil(spec.stop_after_steps / steps_per)))
-    show = use_progress_bar() if spec.progress is None else spec.progress
+    show = main and (use_progress_bar() if spec.progress is None else spec.progress)
     bar = _Progress(show, total_steps, chunk * steps_per)
     eval_key = jax.random.fold_in(jax.random.PRNGKey(spec.seed), EVAL_KEY_OFFSET)
     will_evaluate = stop_chunk >= trainer.num_updates and chunk < stop_chunk
-    eval_future = compile_evaluation_async(spec, eval_key, state) if will_evaluate else None
+    eval_future = compile_evaluation_async(spec, eval_key, _local_view(state)) if will_evaluate else None
 
     def record(c: int, wall: float) -> dict[str, Any]:
         return {"chunk": c, "env_steps": c * steps_per, "wall_s": wall}
@@ -320,7 +410,7 @@ def run(spec: RunSpec) -> dict[str, Any]:
         while chunk < stop_chunk:
             t_chunk = time.perf_counter()
             new_state, metrics = update(state)
-            metrics = {k: float(v) for k, v in jax.device_get(metrics).items()}
+            metrics = {k: float(v) for k, v in _to_host(metrics).items()}
             dt = time.perf_counter() - t_chunk
             if compile_s is None:
                 compile_s = dt
@@ -335,14 +425,16 @@ def run(spec: RunSpec) -> dict[str, Any]:
                 )
             state, chunk = new_state, chunk + 1
             sps = steps_per / max(dt, 1e-9)
-            logger.write(chunk * steps_per, {**metrics, "steps_per_s": sps})
+            if logger is not None:
+                logger.write(chunk * steps_per, {**metrics, "steps_per_s": sps})
             bar.update(chunk * steps_per, _progress_info(metrics, sps))
             if chunk % max(spec.checkpoint_every, 1) == 0 or chunk == stop_chunk:
                 ckpt.save(chunk, state, record(chunk, wall_before + time.perf_counter() - t0))
                 last_saved = chunk
     finally:
         bar.close()
-        logger.close()
+        if logger is not None:
+            logger.close()
     jax.block_until_ready(state)
     train_s = time.perf_counter() - t_loop
     result: dict[str, Any] = {
@@ -352,62 +444,306 @@ def run(spec: RunSpec) -> dict[str, Any]:
         "compile_s": compile_s,
         "train_s": train_s,
     }
-    rows = read_csv(logger.path)
-    plot_training_curves(rows, run_dir)
+    if logger is not None:
+        plot_training_curves(read_csv(logger.path), run_dir)
     if not result["finished"]:
         result["wall_s"] = wall_before + time.perf_counter() - t0
-        print(f"stopped at {result['env_steps']} env steps; continue with --resume {run_dir}", flush=True)
+        _say(f"stopped at {result['env_steps']} env steps; continue with --resume {run_dir}")
         ckpt.close()
         return result
     t_eval = time.perf_counter()
+    local_state = _local_view(state)
     summary = evaluate(
         eval_key,
         spec.env,
-        trainer.policy(state),
+        trainer.policy(local_state),
         spec.eval_episodes,
-        run_dir,
+        run_dir if main else None,
         spec.episode_length,
-        episodes_fn=_compiled_episodes(eval_future, state),
+        episodes_fn=_compiled_episodes(eval_future, local_state),
     )
     result["eval_s"] = time.perf_counter() - t_eval
     result["wall_s"] = wall_before + time.perf_counter() - t0
     result["eval"] = summary
-    _write_json(os.path.join(run_dir, "eval.json"), {**summary, **{k: v for k, v in result.items() if k != "eval"}})
-    title = f"{spec.algo} on {spec.env_name}: evaluation"
-    _print_table(title, {**summary, "env_steps": result["env_steps"], "wall_s": round(result["wall_s"], 1)})
+    if main:
+        _write_json(os.path.join(run_dir, "eval.json"), {**summary, **{k: v for k, v in result.items() if k != "eval"}})
+        title = f"{spec.algo} on {spec.env_name}: evaluation"
+        _print_table(title, {**summary, "env_steps": result["env_steps"], "wall_s": round(result["wall_s"], 1)})
     ckpt.close()
     return result
 
 
-def cli_main(
-    algo: str,
-    parse: Callable[[], Any],
-    build: Callable[[Any], tuple[Env, Trainer, dict[str, Any]]],
-    after: Callable[[dict[str, Any]], Any] | None = None,
-) -> int:
-    """The body of every ``python -m train.<algo>``: parse, build, :func:`run`; the exit code.
+# ---- the command line ---------------------------------------------------------------------------
 
-    Args:
-      algo: the algorithm's name (run-directory prefix and the config section holding
-        ``episode_length``).
-      parse: returns the parsed arguments (fields ``env``, ``seed``, ``out``, ``resume``,
-        ``checkpoint_every``, ``eval_episodes``, ``stop_after_steps``, ``progress``).
-      build: ``args -> (env, trainer, config)``.
-      after: optional hook called with :func:`run`'s result (e.g. extra figures).
+
+@dataclasses.dataclass
+class RunOptions:
+    """The options of a run that every ``python -m train.<algo>`` shares (its ``Args`` extends this)."""
+
+    env: str = "arm7"
+    """Environment: a registered name (envs_mjx.names()) or brax:<name> for brax's own envs."""
+    preset: str = "auto"
+    """Hyper-parameter preset: auto (fast on a GPU, else cpu), thesis, cpu or fast.
+    PPO, A2C and A3C presets run arm7 in kinematic mode under thesis and cpu (--env-config overrides)."""
+    seed: int = 0
+    """Random seed of the run (training); evaluation uses a separate stream derived from it."""
+    reward: str | None = None
+    """Reward function of the env (arm7: sparse, shaped, ordinary, path); None keeps the env's default."""
+    env_config: tuple[str, ...] = ()
+    """Further env settings as KEY=VALUE (e.g. mode=kinematic, trajectory=ellipse, obs=no_goal)."""
+    out: str = "runs"
+    """Parent folder of the run directory runs/<algo>-<env>-<time>/."""
+    resume: str | None = None
+    """Continue the run in this directory (its config.json is used; other flags are ignored).
+    --stop-after-steps, --progress and the process options apply as given."""
+    chunks: int = 50
+    """Reporting chunks per run: metrics, progress and checkpoints happen between chunks."""
+    checkpoint_every: int = 10
+    """Chunks between checkpoints (the last chunk is always saved)."""
+    eval_episodes: int = 100
+    """Test episodes of the final evaluation (reaching envs)."""
+    devices: int = 0
+    """Devices to spread the lanes over (0: all devices, of every process in a run over several)."""
+    stop_after_steps: int = 0
+    """Stop early, resumably, once this many env steps are done (0: run to the end)."""
+    progress: bool | None = None
+    """Show a progress bar (default: only on a terminal and not under CI)."""
+    coordinator: str | None = None
+    """HOST:PORT of process 0 in a run over several processes (jax.distributed).
+    None: $JAX_COORDINATOR_ADDRESS, else a detected SLURM / Open MPI / Kubernetes launch, else one process."""
+    num_processes: int | None = None
+    """Processes of a run over several processes (None: from the launcher's environment)."""
+    process_id: int | None = None
+    """This process's index, 0 to num_processes - 1 (None: from the launcher's environment)."""
+
+
+PROCESS_FIELDS = ("coordinator", "num_processes", "process_id")
+"""Where the run's processes are: always from the command line, never saved in ``config.json``."""
+
+COMMAND_LINE_FIELDS = ("stop_after_steps", "progress", *PROCESS_FIELDS)
+"""Options a resumed run takes from its command line instead of its ``config.json``."""
+
+BRAX_PREFIX = "brax:"
+
+
+def parse_value(text: str) -> Any:
+    """A ``--env-config`` value: JSON where it parses (lists become tuples), else the text."""
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError:
+        return text
+    return tuple(value) if isinstance(value, list) else value
+
+
+def env_overrides(args: Any) -> dict[str, Any]:
+    """Env settings from ``--reward`` and ``--env-config KEY=VALUE``."""
+    out: dict[str, Any] = {}
+    if args.reward is not None:
+        out["reward"] = args.reward
+    for item in args.env_config or ():
+        if "=" not in item:
+            raise ValueError(f"--env-config {item!r}: expected KEY=VALUE")
+        k, v = item.split("=", 1)
+        out[k.strip().replace("-", "_")] = parse_value(v.strip())
+    return out
+
+
+def make_env(name: str, overrides: dict[str, Any]) -> Env:
+    """An unbatched env: ``envs_mjx.make(name, **overrides)`` or ``brax.envs.get_environment``."""
+    import envs_mjx
+
+    if name.startswith(BRAX_PREFIX):
+        from brax import envs as brax_envs
+
+        bname = name[len(BRAX_PREFIX) :]
+        if bname not in brax_envs._envs:
+            raise ValueError(f"unknown brax environment {bname!r}; valid: {', '.join(sorted(brax_envs._envs))}")
+        return brax_envs.get_environment(bname, **overrides)
+    if name not in envs_mjx.names():
+        raise ValueError(f"unknown environment {name!r}; valid names: {', '.join(envs_mjx.names())} (or brax:<name>)")
+    return envs_mjx.make(name, **overrides)
+
+
+def episode_length(env: Env, cfg_len: int = 0) -> int:
+    """The configured time limit, else the env's ``episode_length``, else 1000 (brax's default)."""
+    return int(cfg_len or getattr(env, "episode_length", 0) or 1000)
+
+
+def iterations_per_chunk(total_iterations: int, chunks: int) -> int:
+    """Iterations per reporting chunk so that ``chunks`` chunks cover ``total_iterations`` (at least 1)."""
+    return max(1, -(-total_iterations // max(chunks, 1)))
+
+
+def lane_mesh(devices: int) -> Mesh:
+    """The lane mesh of ``--devices`` (0: every device); a run over several processes uses all of them."""
+    if jax.process_count() > 1 and devices not in (0, jax.device_count()):
+        raise ValueError(
+            f"--devices {devices}: a run over {jax.process_count()} processes spreads its lanes over all "
+            f"{jax.device_count()} devices (--devices 0)"
+        )
+    return parallel.lane_mesh(devices or None)
+
+
+def _none_or(text: str | None, convert: Callable[[str], Any] = str) -> Any:
+    """A pre-parsed value: tyro's ``None`` spelling as None; a value ``convert`` rejects as None (tyro reports it)."""
+    if text is None or text == "None":
+        return None
+    try:
+        return convert(text)
+    except ValueError:
+        return None
+
+
+def preparse(argv: Sequence[str], extra: Sequence[str] = ()) -> argparse.Namespace:
+    """The options read ahead of the full parse, which the defaults and the processes depend on.
+
+    ``env``, ``preset``, ``resume``, ``reward``, ``env_config``, the process options
+    (:data:`PROCESS_FIELDS`) and the ``str | None`` options named in ``extra``; other flags are
+    left to tyro (which also checks these).
+    """
+    pre = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
+    pre.add_argument("--env", default="arm7")
+    pre.add_argument("--preset", default="auto")
+    pre.add_argument("--env-config", dest="env_config", nargs="*", default=())
+    for name in ("resume", "reward", *PROCESS_FIELDS, *extra):
+        pre.add_argument("--" + name.replace("_", "-"), dest=name, default=None)
+    known, _ = pre.parse_known_args(list(argv))
+    known.env_config = tuple(known.env_config)
+    for name in ("resume", "reward", "coordinator", *extra):
+        setattr(known, name, _none_or(getattr(known, name)))
+    for name in ("num_processes", "process_id"):
+        setattr(known, name, _none_or(getattr(known, name), int))
+    return known
+
+
+def _tuples(x: Any) -> Any:
+    """JSON lists back to tuples (the configs' sequence fields are tuples), recursively."""
+    if isinstance(x, dict):
+        return {k: _tuples(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return tuple(_tuples(v) for v in x)
+    return x
+
+
+@dataclasses.dataclass(frozen=True)
+class AlgorithmCLI:
+    """The command line ``python -m train.<name>`` of one algorithm: what the algorithm declares.
+
+    :meth:`parse`, :meth:`build` and :meth:`main` (= :func:`cli_main`) do the rest the same way for
+    every algorithm.
+
+    Attributes:
+      name: the algorithm (``"ppo"``): run-directory prefix, the ``config.json`` section of its
+        hyper-parameters and the field of ``args_type`` that holds them.
+      args_type: a :class:`RunOptions` subclass adding the field ``name`` (``config_type``,
+        ``Annotated[..., tyro.conf.OmitArgPrefixes]``, with a default) and any options of its own.
+      config_type: the hyper-parameter dataclass (with ``replace``, ``validate`` and ``episode_length``).
+      preset: ``(args, env) -> config``: the defaults of the (resolved) ``args.preset`` for ``env``,
+        the env as the run builds it from ``args``.
+      make_trainer: ``(args, env, config, mesh) -> (trainer, iterations per chunk)``; ``config`` is
+        validated, its ``episode_length`` set; ``mesh`` is :func:`lane_mesh` of ``--devices``, over
+        which the trainer spreads its lanes.
+      env_settings: ``args -> env overrides`` for :func:`make_env` (default :func:`env_overrides`).
+      env_fields: options of ``args_type`` beyond ``RunOptions`` that ``env_settings`` reads.
+      after: called on process 0 with :func:`run`'s result (e.g. extra figures).
+    """
+
+    name: str
+    args_type: type
+    config_type: type
+    preset: Callable[[Any, Env], Any]
+    make_trainer: Callable[[Any, Env, Any, Mesh], tuple[Trainer, int]]
+    env_settings: Callable[[Any], dict[str, Any]] = env_overrides
+    env_fields: tuple[str, ...] = ()
+    after: Callable[[dict[str, Any]], Any] | None = None
+
+    def args(self, config: Any = None, **options: Any) -> Any:
+        """An ``args_type`` with ``config`` (default: ``config_type()``) and ``options``."""
+        return self.args_type(**{self.name: self.config_type() if config is None else config}, **options)
+
+    def parse(self, argv: Sequence[str] | None = None) -> Any:
+        """Parse the command line: the preset's defaults for ``--env`` (and its env settings) first,
+        then every flag; with ``--resume DIR`` the arguments saved in that run (:meth:`args_from_saved`)."""
+        argv = sys.argv[1:] if argv is None else list(argv)
+        known = preparse(argv, self.env_fields)
+        if known.resume:
+            preset, config = known.preset, self.config_type()
+        else:
+            preset = resolve_preset(known.preset)
+            fields = ("env", "reward", "env_config", *self.env_fields)
+            ahead = self.args(preset=preset, **{k: getattr(known, k) for k in fields})
+            config = self.preset(ahead, make_env(known.env, self.env_settings(ahead)))
+        default = self.args(config, env=known.env, preset=preset)
+        args = tyro.cli(self.args_type, args=argv, default=default, prog=f"python -m train.{self.name}")
+        args = dataclasses.replace(args, preset=resolve_preset(args.preset))
+        return self.args_from_saved(args.resume, args) if args.resume else args
+
+    def args_from_saved(self, run_dir: str, current: Any) -> Any:
+        """The arguments saved in ``run_dir/config.json``, resuming that run; the options of
+        :data:`COMMAND_LINE_FIELDS` come from ``current`` (this command line)."""
+        saved = load_config(run_dir)
+        if saved.get("algo", self.name) != self.name or self.name not in saved:
+            raise ValueError(f"--resume {run_dir!r}: a {saved.get('algo')!r} run, not {self.name!r}")
+        options = dict(_tuples(saved.get("args", {})))
+        options.update({k: getattr(current, k) for k in COMMAND_LINE_FIELDS}, resume=run_dir)
+        unknown = set(options) - {f.name for f in dataclasses.fields(self.args_type)} - {self.name}
+        if unknown:
+            raise ValueError(f"--resume {run_dir!r}: config.json has unknown options {', '.join(sorted(unknown))}")
+        return self.args(self.config_type(**_tuples(saved[self.name])), **options)
+
+    def build(self, args: Any) -> tuple[Env, Trainer, dict[str, Any]]:
+        """``(env, trainer, config dict)`` for ``args`` (a fresh run or a resumed one)."""
+        env = make_env(args.env, self.env_settings(args))
+        cfg = getattr(args, self.name)
+        if not cfg.episode_length:
+            cfg = cfg.replace(episode_length=episode_length(env))
+        cfg.validate()
+        mesh = lane_mesh(args.devices)
+        trainer, per_chunk = self.make_trainer(args, env, cfg, mesh)
+        options = dataclasses.asdict(args)
+        config = {
+            "algo": self.name,
+            "args": {k: v for k, v in options.items() if k != self.name and k not in PROCESS_FIELDS},
+            self.name: dataclasses.asdict(cfg),
+            "iterations_per_chunk": per_chunk,
+            "devices": mesh.shape[parallel.LANES],
+            "processes": jax.process_count(),
+        }
+        return env, trainer, config
+
+    def main(self, argv: Sequence[str] | None = None) -> int:
+        """Entry point of ``python -m train.<name>``; the exit code (:func:`cli_main`)."""
+        return cli_main(self, argv)
+
+
+def _asks_for_help(argv: Sequence[str]) -> bool:
+    return "-h" in argv or "--help" in argv
+
+
+def cli_main(cli: AlgorithmCLI, argv: Sequence[str] | None = None) -> int:
+    """The body of every ``python -m train.<algo>``: join the processes, parse, build, :func:`run`.
+
+    The process options (``--coordinator``, ``--num-processes``, ``--process-id``, or the
+    launcher's environment) go to ``parallel.initialize_multihost`` before any JAX computation.
+
     Returns:
       0 on a finished run (or one stopped on purpose), 1 after a non-finite loss or an
       unfinished run, 2 on bad input (the message names the field and the valid values).
     """
     from envs_mjx.config import ConfigError
 
+    argv = sys.argv[1:] if argv is None else list(argv)
     try:
-        args = parse()
-        env, trainer, config = build(args)
+        if not _asks_for_help(argv):
+            known = preparse(argv)
+            parallel.initialize_multihost(known.coordinator, known.num_processes, known.process_id)
+        args = cli.parse(argv)
+        env, trainer, config = cli.build(args)
     except (ConfigError, ValueError, FileNotFoundError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     spec = RunSpec(
-        algo=algo,
+        algo=cli.name,
         env_name=args.env,
         env=env,
         trainer=trainer,
@@ -417,7 +753,7 @@ def cli_main(
         run_dir=args.resume,
         checkpoint_every=args.checkpoint_every,
         eval_episodes=args.eval_episodes,
-        episode_length=int(config[algo]["episode_length"]),
+        episode_length=int(config[cli.name]["episode_length"]),
         stop_after_steps=args.stop_after_steps,
         progress=args.progress,
     )
@@ -426,6 +762,6 @@ def cli_main(
     except NonFiniteLossError as e:
         print(f"error: {e}", file=sys.stderr)
         return 1
-    if after is not None:
-        after(result)
+    if cli.after is not None and is_main_process():
+        cli.after(result)
     return 0 if result.get("finished") or args.stop_after_steps else 1
