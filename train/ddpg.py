@@ -32,34 +32,40 @@ from jaxrl_robot.agents.ddpg import DDPGConfig
 from train import common
 from train.presets import ddpg_preset
 
-__all__ = ["CLI", "Args", "build", "main", "parse"]
+__all__ = ["CLI", "Args", "OffPolicyOptions", "build", "main", "parse"]
 
 
 @dataclass
-class Args(common.RunOptions):
-    """DDPG (thesis ch. 3) with optional PER and HER on an MJX robot environment."""
+class OffPolicyOptions(common.RunOptions):
+    """The run options of the DDPG-family command lines (``train.ddpg``, ``train.td3``)."""
 
     chunks: int = 0
     """Reporting chunks per run (0: one per epoch for the 'episodes' schedule, 50 for 'steps')."""
     trajectory: str | None = None
     """Reference trajectory of a tracking env (unicycle: sine, ellipse); None keeps the env's default."""
+
+
+@dataclass
+class Args(OffPolicyOptions):
+    """DDPG (thesis ch. 3) with optional PER and HER on an MJX robot environment."""
+
     ddpg: Annotated[DDPGConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=DDPGConfig)
     """DDPG hyper-parameters (defaults: the preset's values)."""
 
 
-def env_settings(args: Args) -> dict[str, Any]:
+def env_settings(args: OffPolicyOptions) -> dict[str, Any]:
     """Env settings from ``--reward``, ``--trajectory`` and ``--env-config KEY=VALUE``."""
     trajectory = {} if args.trajectory is None else {"trajectory": args.trajectory}
     return {**trajectory, **common.env_overrides(args)}
 
 
-def preset(args: Args, env: Any) -> DDPGConfig:
+def preset(args: OffPolicyOptions, env: Any) -> DDPGConfig:
     """The :class:`DDPGConfig` of ``args.preset`` for ``env`` and its reward (the env's default if not given)."""
     reward = args.reward or getattr(getattr(env, "config", None), "reward", None)
     return ddpg_preset(args.preset, args.env, common.episode_length(env), reward)
 
 
-def make_trainer(args: Args, env: Any, cfg: DDPGConfig, mesh: Mesh):
+def make_trainer(args: OffPolicyOptions, env: Any, cfg: DDPGConfig, mesh: Mesh):
     """The DDPG trainer over the lane mesh: ``--chunks`` chunks, or one per epoch ('episodes') or 50 ('steps')."""
     from jaxrl_robot.agents.ddpg import make_trainer as make_ddpg_trainer
 

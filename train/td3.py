@@ -1,0 +1,74 @@
+"""Train TD3 (thesis §6.2, Eq. 6.2–6.3): ``python -m train.td3 --env unicycle``.
+
+TD3 is DDPG's trainer (``jaxrl_robot.agents.ddpg``) with three of its options set: two critics
+regressed on the clipped double-Q target ``y = r + γ (1 − d) min(Q1'(s', a'), Q2'(s', a'))``
+(Eq. 6.2), the target action smoothed as ``a' = clip(μ'(s') + clip(ξ, −0.5, 0.5), −1, 1)`` with
+``ξ ~ N(0, 0.2²)`` (Eq. 6.3), and the actor (which maximises Q1) and all target networks updated
+once every 2 critic updates. Everything else — presets per env (``train/presets.py``, DDPG's),
+PER, HER, the run directory, evaluation, figures and ``--resume`` — is ``python -m train.ddpg``'s;
+every flag of that command works here, so ``--policy-delay 3`` or ``--target-noise 0.1`` change
+the TD3 settings.
+
+Examples::
+
+    python -m train.td3 --env unicycle --trajectory sine
+    python -m train.td3 --env scara --preset thesis
+    python -m train.td3 --env arm7 --reward sparse --her future --her-k 4
+    python -m train.td3 --resume runs/td3-unicycle-20260101-120000
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass, field
+from typing import Annotated, Any
+
+import tyro
+
+from jaxrl_robot.agents.ddpg import DDPGConfig
+from train import common, ddpg
+
+__all__ = ["CLI", "TD3_SETTINGS", "Args", "build", "main", "parse", "preset"]
+
+TD3_SETTINGS: dict[str, Any] = dict(twin_critics=True, target_noise=0.2, target_noise_clip=0.5, policy_delay=2)
+"""The DDPGConfig fields that make TD3 (Eq. 6.2, Eq. 6.3, delayed actor and targets)."""
+
+
+@dataclass
+class Args(ddpg.OffPolicyOptions):
+    """TD3 (thesis §6.2): DDPG with twin critics, target smoothing and delayed policy updates."""
+
+    td3: Annotated[DDPGConfig, tyro.conf.OmitArgPrefixes] = field(
+        default_factory=lambda: DDPGConfig(**TD3_SETTINGS)
+    )
+    """TD3 hyper-parameters (defaults: DDPG's preset for the env with the TD3 settings)."""
+
+
+def preset(args: ddpg.OffPolicyOptions, env: Any) -> DDPGConfig:
+    """DDPG's preset for ``env`` (:func:`train.ddpg.preset`) with :data:`TD3_SETTINGS`."""
+    return ddpg.preset(args, env).replace(**TD3_SETTINGS)
+
+
+CLI = common.AlgorithmCLI(
+    name="td3", args_type=Args, config_type=DDPGConfig, preset=preset, make_trainer=ddpg.make_trainer,
+    env_settings=ddpg.env_settings, env_fields=("trajectory",),
+)  # fmt: skip
+
+
+def parse(argv: list[str] | None = None) -> Args:
+    """Parse the command line: the preset's defaults for ``--env``/``--reward`` first, then every flag."""
+    return CLI.parse(argv)
+
+
+def build(args: Args):
+    """``(env, trainer, config dict)`` for ``args`` (a fresh run or a saved config)."""
+    return CLI.build(args)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point; returns the process exit code."""
+    return CLI.main(argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
