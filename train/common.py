@@ -81,6 +81,7 @@ from train.presets import resolve_preset
 __all__ = [
     "AlgorithmCLI",
     "NonFiniteLossError",
+    "RunDirError",
     "RunOptions",
     "RunSpec",
     "cli_main",
@@ -101,6 +102,10 @@ __all__ = [
 
 EVAL_KEY_OFFSET = 1_000_003
 """Folded into the seed's key for test episodes, so their starts and goals are not training's."""
+
+
+class RunDirError(ValueError):
+    """The run directory cannot be created (``--out``); the message names the path and the reason."""
 
 
 class NonFiniteLossError(RuntimeError):
@@ -209,7 +214,10 @@ def _new_run_dir(out: str, algo: str, env_name: str) -> str:
     path, i = base, 1
     while os.path.exists(path):
         path, i = f"{base}-{i}", i + 1
-    os.makedirs(path)
+    try:
+        os.makedirs(path)
+    except OSError as e:
+        raise RunDirError(f"--out {out!r}: cannot create the run directory {path!r} ({e.strerror or e})") from None
     return path
 
 
@@ -383,11 +391,12 @@ def run(spec: RunSpec) -> dict[str, Any]:
     chunk, wall_before = 0, 0.0
     if resuming:
         step = ckpt.latest_step()
-        if step is None:
-            raise FileNotFoundError(f"--resume {run_dir!r}: no checkpoint to resume from")
-        state, record = ckpt.restore(step, state)
-        chunk, wall_before = int(record["chunk"]), float(record.get("wall_s", 0.0))
-        _say(f"resumed at chunk {chunk} ({chunk * trainer.env_steps_per_update} env steps)")
+        if step is None:  # stopped before its first checkpoint: the saved config, from the start
+            _say(f"--resume {run_dir}: no checkpoint yet; starting this run from the beginning with its saved config")
+        else:
+            state, record = ckpt.restore(step, state)
+            chunk, wall_before = int(record["chunk"]), float(record.get("wall_s", 0.0))
+            _say(f"resumed at chunk {chunk} ({chunk * trainer.env_steps_per_update} env steps)")
     steps_per = trainer.env_steps_per_update
     logger = MetricsLogger(run_dir, keep_until_step=chunk * steps_per if resuming else None) if main else None
     update = jax.jit(trainer.update)
@@ -759,6 +768,9 @@ def cli_main(cli: AlgorithmCLI, argv: Sequence[str] | None = None) -> int:
     )
     try:
         result = run(spec)
+    except RunDirError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     except NonFiniteLossError as e:
         print(f"error: {e}", file=sys.stderr)
         return 1

@@ -160,3 +160,30 @@ def test_checkpoint_round_trip_keeps_structure_with_empty_arrays(tmp_path):
     for a, b in zip(jax.tree.leaves(restored), jax.tree.leaves(state), strict=True):
         assert a.shape == b.shape and a.dtype == b.dtype
         np.testing.assert_array_equal(a, b)
+
+
+def test_out_that_cannot_be_created_is_a_one_line_error(tmp_path, capsys):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("not a folder")
+    argv = ["--env", "brax:fast", "--episode-length", "16", "--total-steps", "256", *TINY]
+    assert ppo_cli.main([*argv, "--out", str(blocker / "runs")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: --out '{blocker / 'runs'}': cannot create the run directory")
+
+
+def test_resume_before_the_first_checkpoint_starts_that_run_over(tmp_path, capsys):
+    run_dir = tmp_path / "fake-none-killed"
+    run_dir.mkdir()
+    (run_dir / "config.json").write_text("{}")
+    (run_dir / "metrics.csv").write_text("env_steps,critic_loss\n100,0.5\n")  # written before it was killed
+    spec = common.RunSpec(
+        algo="fake", env_name="none", env=None, trainer=_nan_trainer(bad_chunk=99), config={}, run_dir=str(run_dir),
+        checkpoint_every=1, stop_after_steps=300, progress=False,
+    )  # fmt: skip
+    result = common.run(spec)
+    assert "no checkpoint yet; starting this run from the beginning with its saved config" in capsys.readouterr().out
+    assert result["env_steps"] == 300 and not result["finished"]
+    state, record = Checkpointer(str(run_dir / "checkpoints")).restore(3, _nan_trainer(99).init(None))
+    assert int(state["count"]) == 3 and record["env_steps"] == 300
+    rows = common.read_csv(str(run_dir / "metrics.csv"))
+    assert [int(float(r["env_steps"])) for r in rows] == [100, 200, 300]  # the killed run's row replaced
