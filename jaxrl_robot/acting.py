@@ -1,12 +1,17 @@
 """Rollouts: ``N`` steps of a batched, auto-resetting environment under ``lax.scan``.
 
 The environment is one wrapped by ``envs_mjx.wrap_for_training`` (vmapped lanes, time limit
-with ``info["truncation"]``, true auto-reset with ``info["final_obs"]``).
+with ``info["truncation"]``, true auto-reset with ``info["final_obs"]``).  :func:`rollout` runs
+every lane for all ``N`` steps; :func:`rollout_until_done` stops each lane at the end of its
+episode (a local buffer that closes early, thesis Algorithm 3, line 8).  Randomness per lane is
+keyed by global lane index (:func:`per_lane_keys`), so results do not depend on how lanes are
+spread over devices.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -14,7 +19,7 @@ from brax.envs.base import Env, State
 
 from jaxrl_robot.types import Transition
 
-__all__ = ["StochasticPolicy", "env_step", "rollout"]
+__all__ = ["StochasticPolicy", "env_step", "lane_select", "per_lane_keys", "rollout", "rollout_until_done"]
 
 StochasticPolicy = Callable[[jax.Array, jax.Array], jax.Array]
 """``(key, obs [B, D]) -> action [B, A]``."""
@@ -61,3 +66,42 @@ def rollout(
         return env_step(env, s, policy(k, s.obs))
 
     return jax.lax.scan(body, state, jax.random.split(key, num_steps))
+
+
+def rollout_until_done(
+    key: jax.Array, env: Env, state: State, policy: StochasticPolicy, num_steps: int
+) -> tuple[State, Transition, jax.Array]:
+    """Run ``policy`` for up to ``num_steps`` steps per lane, each lane stopping at its episode's end.
+
+    A lane whose episode ends at step ``t`` idles for the remaining steps: its state is held and
+    its later transitions carry ``termination = truncation = done = 0`` and ``mask = 0``.
+
+    Args: as :func:`rollout`.
+    Returns:
+      ``(final state [B], Transition [N, B], mask [N, B])``; ``mask`` is 1.0 on the steps taken.
+    """
+
+    def body(carry: tuple[State, jax.Array], k: jax.Array):
+        s, active = carry
+        ns, tr = env_step(env, s, policy(k, s.obs))
+        s = lane_select(active > 0, ns, s)
+        tr = tr._replace(termination=tr.termination * active, truncation=tr.truncation * active, done=tr.done * active)
+        return (s, active * (1.0 - tr.done)), (tr, active)
+
+    init = (state, jnp.ones(state.done.shape, jnp.float32))
+    (state, _), (traj, mask) = jax.lax.scan(body, init, jax.random.split(key, num_steps))
+    return state, traj, mask
+
+
+def per_lane_keys(key: jax.Array, lane_ids: jax.Array) -> jax.Array:
+    """Keys ``[B]``: ``fold_in(key, lane_ids[i])`` for lane ``i`` (``lane_ids`` global lane indices)."""
+    return jax.vmap(jax.random.fold_in, in_axes=(None, 0))(key, lane_ids)
+
+
+def lane_select(pred: jax.Array, a: Any, b: Any) -> Any:
+    """Per lane ``pred [B] ? a : b`` on pytrees with a leading lane axis."""
+
+    def pick(x: jax.Array, y: jax.Array) -> jax.Array:
+        return jnp.where(pred.reshape(pred.shape + (1,) * (x.ndim - 1)), x, y)
+
+    return jax.tree.map(pick, a, b)
