@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 from envs_mjx.config import ConfigError, check_choice, check_range
-from jaxrl_robot.networks import BN_MODES
+from jaxrl_robot.agents.common import ActorCriticConfig, check_counts
 
 __all__ = ["OBJECTIVES", "PPOConfig"]
 
@@ -14,7 +13,7 @@ OBJECTIVES = ("clip", "kl")
 
 
 @dataclass(frozen=True)
-class PPOConfig:
+class PPOConfig(ActorCriticConfig):
     """Distributed PPO with GAE (thesis §5.1–5.3, Algorithms 7–8).
 
     Each iteration, ``num_envs`` lanes (the K workers) collect ``unroll_length`` (N) steps with
@@ -22,24 +21,16 @@ class PPOConfig:
     steps run on mini-batches of ``minibatch_size`` (B) transitions drawn from the K·N.
     Each mini-batch takes ``B / K`` transitions from every lane (without replacement within
     the lane), which keeps the result independent of how lanes are spread over devices.
+    The fields shared with the other actor-critic agents are those of
+    :class:`~jaxrl_robot.agents.common.ActorCriticConfig`.
     """
 
-    total_steps: int = 400_000
-    """Environment steps of the whole run (rounded up to whole chunks of iterations)."""
-    num_envs: int = 4
-    """K: parallel lanes (workers); a multiple of the device count."""
-    unroll_length: int = 8
-    """N: steps each lane collects per iteration."""
     minibatch_size: int = 32
     """B: transitions per update; a multiple of num_envs, at most num_envs * unroll_length."""
     actor_updates: int = 5
     """m: actor gradient steps per iteration (Algorithm 8, lines 5-10)."""
     critic_updates: int = 5
     """n: critic gradient steps per iteration (Algorithm 8, lines 11-16)."""
-    actor_lr: float = 1e-4
-    """Adam learning rate of the actor (α_π)."""
-    critic_lr: float = 5e-4
-    """Adam learning rate of the critic (α_v)."""
     objective: str = "clip"
     """'clip': clipped surrogate (Eq. 5.5); 'kl': adaptive KL penalty (Eq. 5.3-5.4)."""
     clip_eps: float = 0.2
@@ -52,41 +43,10 @@ class PPOConfig:
     """Floor on the adaptive β (the halve/double rule never takes it below this)."""
     kl_beta_max: float = 1e3
     """Ceiling on the adaptive β."""
-    gamma: float = 0.9
-    """Discount factor γ."""
     gae_lambda: float = 0.95
     """λ of GAE (Eq. 5.12) and of the critic's λ-returns (Eq. 5.14)."""
-    sigma: tuple[float, ...] = (0.8, 0.8, 0.1)
-    """Policy standard deviation per action dimension (one value is broadcast)."""
-    learn_std: bool = False
-    """Learn a state-independent log-std starting at log(sigma) instead of a fixed σ."""
-    actor_hidden: tuple[int, ...] = (200, 200)
-    """Hidden layer widths of the actor."""
-    critic_hidden: tuple[int, ...] = (200, 200)
-    """Hidden layer widths of the critic."""
-    batch_norm: bool = True
-    """Batch-normalise the actor (batch statistics in training, moving averages when acting)."""
-    bn_momentum: float = 0.999
-    """Decay of the batch-norm moving averages, applied at every actor update. Slow: with K = 4
-    lanes each mini-batch holds 4 goals, and its statistics, re-used by the m updates, would drag
-    the acting policy around (arm7 thesis preset, seed 0: 2 % test success at 0.99, 79 % at 0.999)."""
-    bn_mode: str = "renorm"
-    """Actor batch-norm in training: 'renorm' — batch renormalisation (Ioffe, 2017): outputs equal
-    the acting ones (moving averages) while gradients flow through the batch statistics;
-    'batch' — plain batch-norm, whose trained policy (each few-lane mini-batch normalised by its
-    own statistics) is not the acting one."""
     normalize_obs: bool = False
     """Normalise observations by running mean and variance (actor and critic inputs)."""
-    normalize_advantages: bool = True
-    """Standardise advantages over each iteration's K·N transitions."""
-    entropy_coef: float = 0.0
-    """Entropy bonus coefficient in the actor objective."""
-    max_grad_norm: float = 0.0
-    """Clip gradients to this global norm (0: no clipping)."""
-    reward_scale: float = 1.0
-    """Multiply rewards by this before computing returns."""
-    episode_length: int = 0
-    """Time limit in steps (0: the environment's own ``episode_length``)."""
     reset_refresh: float = 0.125
     """Auto-reset cost: the fraction of lanes whose next episode is drawn per step (``(0, 1]``).
     Below 1, finished lanes start from a pool of pre-drawn episodes (``envs_mjx.PoolResetWrapper``);
@@ -102,40 +62,22 @@ class PPOConfig:
     """Episode-parameter schedule: entries (start fraction of training, name in
     state.info["params"], value); from each start on, the parameter takes the value, broadcast
     to its shape (e.g. the RSI window and the early-termination limit of the tracking envs,
-    SPEC §E5). On the command line: --schedule 0 et_limit 20 0.5 et_limit 15 ..."""
+    thesis §3.5.2). On the command line: --schedule 0 et_limit 20 0.5 et_limit 15 ..."""
 
     def validate(self) -> PPOConfig:
         """Raise ``ConfigError`` naming the first invalid field; return self."""
-        for name in ("total_steps", "num_envs", "unroll_length", "minibatch_size", "actor_updates", "critic_updates"):
-            check_range(name, getattr(self, name), 1)
-            if int(getattr(self, name)) != getattr(self, name):
-                raise ConfigError(f"{name}={getattr(self, name)!r} must be an integer")
-        check_range("actor_lr", self.actor_lr, 0.0, lo_open=True)
-        check_range("critic_lr", self.critic_lr, 0.0, lo_open=True)
+        super().validate()
+        check_counts(self, "minibatch_size", "actor_updates", "critic_updates")
         check_choice("objective", self.objective, OBJECTIVES)
         check_range("clip_eps", self.clip_eps, 0.0, 1.0, lo_open=True, hi_open=True)
         check_range("kl_target", self.kl_target, 0.0, lo_open=True)
         check_range("kl_beta", self.kl_beta, 0.0, lo_open=True)
         check_range("kl_beta_min", self.kl_beta_min, 0.0)
         check_range("kl_beta_max", self.kl_beta_max, self.kl_beta_min, lo_open=True)
-        check_range("gamma", self.gamma, 0.0, 1.0)
         check_range("gae_lambda", self.gae_lambda, 0.0, 1.0)
-        check_range("bn_momentum", self.bn_momentum, 0.0, 1.0, hi_open=True)
-        check_choice("bn_mode", self.bn_mode, BN_MODES)
-        check_range("entropy_coef", self.entropy_coef, 0.0)
-        check_range("max_grad_norm", self.max_grad_norm, 0.0)
-        check_range("reward_scale", self.reward_scale, 0.0, lo_open=True)
-        check_range("episode_length", self.episode_length, 0)
         check_range("reset_refresh", self.reset_refresh, 0.0, 1.0, lo_open=True)
         check_range("reset_group", self.reset_group, 1)
         check_range("lane_group", self.lane_group, 0)
-        if not self.sigma:
-            raise ConfigError("sigma=() must have at least one value")
-        for i, s in enumerate(self.sigma):
-            check_range(f"sigma[{i}]", s, 0.0, lo_open=True)
-        for name in ("actor_hidden", "critic_hidden"):
-            for i, w in enumerate(getattr(self, name)):
-                check_range(f"{name}[{i}]", w, 1)
         if self.minibatch_size % self.num_envs:
             raise ConfigError(
                 f"minibatch_size={self.minibatch_size} must be a multiple of num_envs={self.num_envs} "
@@ -152,7 +94,3 @@ class PPOConfig:
             check_range(f"schedule[{i}].start", entry[0], 0.0, 1.0)
             check_range(f"schedule[{i}].value", entry[2])
         return self
-
-    def replace(self, **changes) -> PPOConfig:
-        """A copy with ``changes`` applied (the original is not modified)."""
-        return dataclasses.replace(self, **changes)
