@@ -1,12 +1,28 @@
-"""PPO objectives on one mini-batch ``[B]`` (thesis Eq. 5.3-5.5, Algorithm 8)."""
+"""PPO objectives on one mini-batch ``[B]`` (thesis Eq. 5.3-5.5, Algorithm 8).
+
+:func:`make_actor_loss` combines them with the Gaussian actor into the loss of one actor step.
+"""
 
 from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
 
 import chex
 import jax
 import jax.numpy as jnp
 
-__all__ = ["LOG_RATIO_LIMIT", "adapt_kl_beta", "clipped_surrogate_loss", "kl_penalty_loss", "value_loss"]
+from jaxrl_robot.agents.ppo.config import PPOConfig
+from jaxrl_robot.networks import GaussianActor, apply_actor, gaussian_entropy, gaussian_kl, gaussian_log_prob
+
+__all__ = [
+    "LOG_RATIO_LIMIT",
+    "adapt_kl_beta",
+    "clipped_surrogate_loss",
+    "kl_penalty_loss",
+    "make_actor_loss",
+    "value_loss",
+]
 
 LOG_RATIO_LIMIT = 20.0
 """|log r| is clipped here before ``exp``: beyond it r overflows float32 (e^88) with a narrow σ
@@ -88,3 +104,33 @@ def value_loss(values: jax.Array, targets: jax.Array) -> jax.Array:
     chex.assert_rank((values, targets), 1)
     chex.assert_equal_shape((values, targets))
     return jnp.mean((jax.lax.stop_gradient(targets) - values) ** 2)
+
+
+def make_actor_loss(config: PPOConfig, actor: GaussianActor) -> Callable:
+    """``loss(params, stats, minibatch, beta) -> (loss, (new_stats, clip_fraction, entropy, kl))``.
+
+    ``minibatch = (obs [B, D], action [B, A], advantage [B], old_mean [B, A], old_log_std [B, A])``
+    where ``old_*`` are π_old's outputs as it acted. π_θ runs in training mode (batch
+    statistics; ``new_stats`` are the advanced moving averages). The ratio
+    ``r = π_θ(a|s) / π_old(a|s)`` enters the clipped objective (Eq. 5.5) or the KL-penalty
+    objective (Eq. 5.3) with ``kl = KL(π_old ‖ π_θ)``, mean over the mini-batch; minus
+    ``entropy_coef`` times the mean entropy.
+    """
+
+    def loss_fn(params: Any, stats: Any, mb: tuple, beta: jax.Array):
+        obs, action, adv, old_mean, old_log_std = mb
+        (mean, log_std), new_stats = apply_actor(actor, params, stats, obs, train=True)
+        log_prob = gaussian_log_prob(mean, log_std, action)
+        old_log_prob = gaussian_log_prob(old_mean, old_log_std, action)
+        kl = gaussian_kl(old_mean, old_log_std, mean, log_std)
+        entropy = jnp.mean(gaussian_entropy(log_std))
+        if config.objective == "clip":
+            loss, clip_frac = clipped_surrogate_loss(log_prob, old_log_prob, adv, config.clip_eps)
+        else:
+            loss = kl_penalty_loss(log_prob, old_log_prob, adv, kl, beta)
+            log_ratio = jnp.clip(log_prob - old_log_prob, -LOG_RATIO_LIMIT, LOG_RATIO_LIMIT)
+            clip_frac = jnp.mean((jnp.abs(jnp.exp(log_ratio) - 1.0) > config.clip_eps) * 1.0)
+        loss = loss - config.entropy_coef * entropy
+        return loss, (new_stats, clip_frac, entropy, jnp.mean(kl))
+
+    return loss_fn
