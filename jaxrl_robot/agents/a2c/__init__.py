@@ -8,17 +8,8 @@ from jaxrl_robot.agents.a2c.asynchrony import (
     staleness_histogram,
 )
 from jaxrl_robot.agents.a2c.config import PUSH_ORDERS, A2CConfig, A3CConfig
-from jaxrl_robot.agents.a2c.losses import actor_loss, critic_loss, worker_targets
-from jaxrl_robot.agents.a2c.train import (
-    A2CState,
-    A3CState,
-    Buffer,
-    NetParams,
-    make_networks,
-    make_train,
-    make_trainer,
-    make_worker_loss,
-)
+from jaxrl_robot.agents.a2c.losses import Buffer, actor_loss, critic_loss, make_worker_loss, worker_targets
+from jaxrl_robot.agents.a2c.train import A2CState, A3CState, NetParams, make_networks, make_train, make_trainer
 
 __all__ = [
     "PUSH_ORDERS",
