@@ -55,20 +55,9 @@ CLI = common.AlgorithmCLI(
 )  # fmt: skip
 
 
-def parse(argv: list[str] | None = None) -> Args:
-    """Parse the command line: the preset's defaults for ``--env``/``--reward`` first, then every flag."""
-    return CLI.parse(argv)
-
-
-def build(args: Args):
-    """``(env, trainer, config dict)`` for ``args`` (a fresh run or a saved config)."""
-    return CLI.build(args)
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Entry point; returns the process exit code."""
-    return CLI.main(argv)
-
+parse = CLI.parse  # (argv=None) -> Args: the preset's defaults for --env first, then every flag
+build = CLI.build  # (args) -> (env, trainer, config dict), a fresh run or a resumed one
+main = CLI.main  # (argv=None) -> exit code
 
 if __name__ == "__main__":
     sys.exit(main())
