@@ -1,6 +1,9 @@
 """DDPG (thesis §3.1, Algorithm 1) with prioritised (§3.2) and hindsight (§3.3) replay."""
 
+from jaxrl_robot.agents.ddpg.acting import make_noise_for
 from jaxrl_robot.agents.ddpg.config import NOISES, SCHEDULES, DDPGConfig
+from jaxrl_robot.agents.ddpg.core import GOAL_API, DDPGState
+from jaxrl_robot.agents.ddpg.learner import SINGLE, Workers, make_networks, make_optimizer, worker_shards
 from jaxrl_robot.agents.ddpg.losses import (
     actor_loss,
     clipped_double_q,
@@ -12,25 +15,19 @@ from jaxrl_robot.agents.ddpg.losses import (
     twin_critic_loss,
 )
 from jaxrl_robot.agents.ddpg.networks import OUTPUTS, DDPGActor, DDPGCritic
-from jaxrl_robot.agents.ddpg.train import (
-    GOAL_API,
-    DDPGState,
-    make_networks,
-    make_noise_for,
-    make_optimizer,
-    make_train,
-    make_trainer,
-)
+from jaxrl_robot.agents.ddpg.train import make_train, make_trainer
 
 __all__ = [
     "GOAL_API",
     "NOISES",
     "OUTPUTS",
     "SCHEDULES",
+    "SINGLE",
     "DDPGActor",
     "DDPGConfig",
     "DDPGCritic",
     "DDPGState",
+    "Workers",
     "actor_loss",
     "clipped_double_q",
     "critic_loss",
@@ -44,4 +41,5 @@ __all__ = [
     "soft_update",
     "td_target",
     "twin_critic_loss",
+    "worker_shards",
 ]

@@ -1,0 +1,254 @@
+"""DDPG acting: lanes that explore with ``a = μ(s) + ω`` and record transitions (Algorithm 1, lines 5–8).
+
+>>> acting = make_acting(config, env, actor, noise, her, episode_length)
+>>> policy = acting.policy(lane_ids, params, obs_stats, factor)        # this device's lanes [b]
+>>> got = acting.collect(key, lane_ids, policy, env_state, noise_state)
+>>> flat, mask = acting.gather(got.rows, got.mask)                     # every device's rows
+
+Two schedules (``config.schedule``):
+
+* ``"episodes"`` (§3.4.2, Algorithms 1–2): each lane runs one whole episode; every transition
+  is kept with its real goal and, with HER, again with each additional goal and a recomputed
+  reward (``C`` copies per step).  Rows per lane: ``N = T · C``.
+* ``"steps"`` (§3.5, Table 3.3): auto-resetting lanes step ``U = unroll_length`` times; a lane's
+  noise process restarts with its next episode.  Rows per lane: ``N = U``.
+
+A failing step (termination without success) is stored with reward ``r + γ·failure_value`` and
+``d = 1`` (an absorbing failure state); ``d`` marks terminations only, never a time limit.
+
+Everything here runs on one device's lanes inside ``parallel.shard_lanes`` and returns that
+device's rows lane-major ``[b, N, ...]``; :attr:`Acting.gather` puts every device's rows in the
+replay's global order.  Randomness per lane is keyed by its *global* lane index, so a run does
+not depend on the number of devices.  The policy is a closure, so the same rollout serves lanes
+acting with the global parameters and collecting workers acting with their own copies (thesis
+Algorithm 6).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+from brax.envs.base import Env, State
+
+from envs_mjx.base import EpisodeWrapper, wrap_for_training
+from jaxrl_robot import parallel
+from jaxrl_robot.agents.ddpg.config import DDPGConfig
+from jaxrl_robot.networks import normalize
+from jaxrl_robot.noise import Noise, NoiseState, make_noise
+from jaxrl_robot.replay import GoalEpisode, Her, Transition
+from jaxrl_robot.types import RunningStats
+
+__all__ = ["Acting", "Collected", "LanePolicy", "make_acting", "make_noise_for", "per_lane_keys", "tree_where"]
+
+LanePolicy = Callable[[jax.Array, jax.Array, NoiseState], tuple[jax.Array, NoiseState]]
+"""``(key, obs [b, O], noise [b, A]) -> (action [b, A], noise)`` for one device's lanes."""
+
+
+class Collected(NamedTuple):
+    """What one iteration of acting leaves on a device.
+
+    Attributes:
+      env_state: ``State [b]`` after acting (the final step of the episodes for 'episodes').
+      noise_state: ``NoiseState [b, A]`` after acting (unchanged for 'episodes': each episode
+        starts its own process).
+      rows: ``Transition [b, N]`` with raw (not normalised) observations.
+      mask: ``[b, N]`` bool, the rows to store ('episodes': steps before the episode ended and
+        the HER copies kept); None where every row is stored ('steps').
+      sums: ``[]`` sums over this device's finished episodes: ``episodes``, ``episode_return``,
+        ``episode_length`` and every per-lane env metric.
+    """
+
+    env_state: State
+    noise_state: NoiseState
+    rows: Transition
+    mask: jax.Array | None
+    sums: dict[str, jax.Array]
+
+
+class Acting(NamedTuple):
+    """Acting functions of one DDPG configuration (see the module docstring).
+
+    Attributes:
+      reset: ``keys [b] -> (State [b], NoiseState [b, A])`` initial lanes.
+      policy: ``(lane_ids [b], actor params, obs stats, factor or None) -> LanePolicy``:
+        ``clip(μ(x) + f·ω, −1, 1)`` (Eq. 3.7) with ``x`` the normalised observation.
+      explore: the same as a function ``(key, lane_ids, params, stats, obs, noise, factor)``.
+      collect: ``(key, lane_ids [b], policy, State [b], NoiseState [b]) -> Collected``.
+      gather: ``(rows [b, N], mask [b, N] | None) -> (rows [R], mask [R] | None)`` with
+        ``R = B · N`` over every device: time-major in global lane order (rows of one time step
+        together), or lane-major with HER (an episode's rows and their copies together).
+      norm: ``(stats, obs [..., O]) -> network input`` (``normalize_obs``, else unchanged).
+      act: ``(actor params, x [..., O]) -> μ(x) [..., A]``.
+      fresh_noise: ``n -> NoiseState [n, A]`` processes at their start.
+    """
+
+    reset: Callable[..., tuple[State, NoiseState]]
+    policy: Callable[..., LanePolicy]
+    explore: Callable[..., tuple[jax.Array, NoiseState]]
+    collect: Callable[..., Collected]
+    gather: Callable[..., tuple[Any, jax.Array | None]]
+    norm: Callable[[RunningStats, jax.Array], jax.Array]
+    act: Callable[[Any, jax.Array], jax.Array]
+    fresh_noise: Callable[[int], NoiseState]
+
+
+def make_noise_for(config: DDPGConfig, action_size: int) -> Noise:
+    """The configured exploration noise (``config.noise``) for ``action_size`` dimensions."""
+    if config.noise == "ou":
+        return make_noise("ou", action_size, mean=config.noise_mean, reversion=config.noise_reversion,
+                          scale=config.noise_scale)
+    return make_noise("gaussian", action_size, scale=config.noise_scale, mean=config.noise_mean)
+
+
+def tree_where(cond: jax.Array, a: Any, b: Any) -> Any:
+    """Per-lane select ``cond [n] ? a : b`` over pytrees with a leading axis ``[n]``."""
+    return jax.tree.map(lambda x, y: jnp.where(cond.reshape(cond.shape + (1,) * (x.ndim - 1)), x, y), a, b)
+
+
+def per_lane_keys(key: jax.Array, lane_ids: jax.Array) -> jax.Array:
+    """One key per lane from its global index: ``lane_ids [b] -> keys [b]`` (independent of the device count)."""
+    return jax.vmap(jax.random.fold_in, in_axes=(None, 0))(key, lane_ids)
+
+
+def _lane_major(tree: Any) -> Any:
+    """``[T, b, ...] -> [b, T, ...]``."""
+    return jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), tree)
+
+
+def make_acting(
+    config: DDPGConfig, env: Env, actor: Any, noise: Noise, her: Her | None, episode_length: int
+) -> Acting:
+    """The :class:`Acting` of ``config`` for the unbatched ``env`` (``actor``: a flax module)."""
+    T = episode_length
+    fail_bonus = config.gamma * config.failure_value  # stored into a failing step's reward (terminal: no bootstrap)
+    if config.schedule == "episodes":
+        lane_env, batched_env = EpisodeWrapper(env, T), None
+    else:
+        lane_env, batched_env = None, wrap_for_training(env, episode_length=T)
+
+    def norm(stats: RunningStats, obs: jax.Array) -> jax.Array:
+        return normalize(stats if config.normalize_obs else None, obs)
+
+    def act(params: Any, obs: jax.Array) -> jax.Array:
+        return actor.apply(params, obs)
+
+    def explore(
+        key: jax.Array, lane_ids: jax.Array, params: Any, stats: RunningStats, obs: jax.Array, nstate: NoiseState,
+        factor: jax.Array | None,
+    ) -> tuple[jax.Array, NoiseState]:
+        """``a = clip(μ(s) + f·ω, -1, 1)`` for the lanes ``lane_ids [b]``: raw ``[b, O] -> [b, A]``."""
+        eps, nstate = jax.vmap(noise.sample)(per_lane_keys(key, lane_ids), nstate)
+        if factor is not None:
+            eps = factor * eps
+        return jnp.clip(act(params, norm(stats, obs)) + eps, -1.0, 1.0), nstate
+
+    def policy(lane_ids: jax.Array, params: Any, stats: RunningStats, factor: jax.Array | None) -> LanePolicy:
+        return lambda key, obs, nstate: explore(key, lane_ids, params, stats, obs, nstate, factor)
+
+    def terminal(ns: State) -> jax.Array:
+        """``d [b]``: 1 where the step ended the episode other than by the time limit (and, with
+        ``termination_metric``, where that metric is set; other ends bootstrap)."""
+        term = ns.done.astype(jnp.float32) * (1.0 - ns.info["truncation"].astype(jnp.float32))
+        if config.termination_metric:
+            term = term * ns.metrics[config.termination_metric].astype(jnp.float32)
+        return term
+
+    def failed(ns: State, term: jax.Array) -> jax.Array:
+        """``[b]`` 1 where the step terminated without success."""
+        return term * (1.0 - ns.metrics.get("success", jnp.zeros_like(term)).astype(jnp.float32))
+
+    def lane_metrics(ns: State, b: int) -> dict[str, jax.Array]:
+        return {k: v for k, v in ns.metrics.items() if v.shape == (b,)}
+
+    def fresh_noise(n: int) -> NoiseState:
+        return jax.vmap(lambda _: noise.init())(jnp.arange(n))
+
+    def reset(keys: jax.Array) -> tuple[State, NoiseState]:
+        env_state = jax.vmap(lane_env.reset)(keys) if lane_env is not None else batched_env.reset(keys)
+        return env_state, fresh_noise(keys.shape[0])
+
+    def run_episodes(key: jax.Array, lane_ids: jax.Array, policy: LanePolicy, nstate: NoiseState) -> Collected:
+        """One whole episode in each lane ``lane_ids [b]``."""
+        b = lane_ids.shape[0]
+        k_reset, k_steps, k_her = jax.random.split(key, 3)
+        state0 = jax.vmap(lane_env.reset)(per_lane_keys(k_reset, lane_ids))
+
+        def body(carry, k):
+            s, ns_noise, finished = carry
+            a, ns_noise = policy(k, s.obs, ns_noise)
+            ns = jax.vmap(lane_env.step)(s, a)
+            done = ns.done.astype(jnp.float32)
+            term = terminal(ns)
+            alive = 1.0 - finished
+            row = {"obs": s.obs, "action": a, "reward": ns.reward, "next_obs": ns.obs, "terminated": term,
+                   "failed": failed(ns, term), "valid": alive, "ending": alive * done, "metrics": lane_metrics(ns, b)}
+            if her is not None:
+                row["achieved"] = jax.vmap(env.achieved_goal)(ns)
+                row["ee_pos"] = ns.info["ee_pos"]
+            # lanes keep stepping after their episode ended; those steps are masked out
+            return (ns, ns_noise, jnp.maximum(finished, done)), row
+
+        carry = (state0, fresh_noise(b), jnp.zeros((b,), jnp.float32))
+        (final, _, _), traj = jax.lax.scan(body, carry, jax.random.split(k_steps, T))
+        sums = {"episodes": jnp.asarray(b, jnp.float32)}
+        sums["episode_return"] = jnp.sum(traj["valid"] * traj["reward"])
+        sums["episode_length"] = jnp.sum(traj["valid"])
+        for name, v in traj["metrics"].items():
+            sums[name] = jnp.sum(traj["ending"] * v)
+        lanes = _lane_major(traj)  # [b, T, ...]
+        if her is None:
+            reward = lanes["reward"] + fail_bonus * lanes["failed"]
+            rows = Transition(lanes["obs"], lanes["action"], reward, lanes["next_obs"], lanes["terminated"])
+            return Collected(final, nstate, rows, lanes["valid"] > 0, sums)
+        achieved0 = jax.vmap(env.achieved_goal)(state0)
+        episodes = GoalEpisode(
+            obs=lanes["obs"], action=lanes["action"], reward=lanes["reward"], next_obs=lanes["next_obs"],
+            terminated=lanes["terminated"], failed=lanes["failed"], valid=lanes["valid"],
+            achieved=jnp.concatenate([achieved0[:, None], lanes["achieved"]], axis=1),
+            ee_pos=jnp.concatenate([state0.info["ee_pos"][:, None], lanes["ee_pos"]], axis=1),
+            goal=jax.vmap(env.desired_goal)(state0),
+        )
+        tr, mask, _ = jax.vmap(her.relabel)(per_lane_keys(k_her, lane_ids), episodes)  # [b, T, C, ...]
+        tr = tr._replace(reward=tr.reward + fail_bonus * episodes.failed[:, :, None])  # failure is goal-independent
+        rows, mask = jax.tree.map(lambda x: x.reshape((b, -1) + x.shape[3:]), (tr, mask))
+        return Collected(final, nstate, rows, mask, sums)
+
+    def run_steps(key: jax.Array, lane_ids: jax.Array, policy: LanePolicy, s: State, nstate: NoiseState) -> Collected:
+        """``unroll_length`` steps of the auto-resetting lanes ``lane_ids [b]``."""
+        b = lane_ids.shape[0]
+
+        def body(carry, k):
+            s, nstate = carry
+            a, nstate = policy(k, s.obs, nstate)
+            ns = batched_env.step(s, a)
+            done = ns.done.astype(jnp.float32)
+            term = terminal(ns)
+            tr = Transition(s.obs, a, ns.reward + fail_bonus * failed(ns, term), ns.info["final_obs"], term)
+            nstate = tree_where(done > 0, fresh_noise(b), nstate)  # new episode, new noise process
+            ep = {"episodes": jnp.sum(done), "episode_return": jnp.sum(done * ns.info["episode_return"]),
+                  "episode_length": jnp.sum(done * ns.info["episode_length"])}
+            for name, v in lane_metrics(ns, b).items():
+                ep[name] = jnp.sum(done * v)
+            return (ns, nstate), (tr, ep)
+
+        (s, nstate), (traj, ep) = jax.lax.scan(body, (s, nstate), jax.random.split(key, config.unroll_length))
+        return Collected(s, nstate, _lane_major(traj), None, jax.tree.map(jnp.sum, ep))
+
+    def collect(key: jax.Array, lane_ids: jax.Array, policy: LanePolicy, s: State, nstate: NoiseState) -> Collected:
+        if config.schedule == "episodes":
+            return run_episodes(key, lane_ids, policy, nstate)
+        return run_steps(key, lane_ids, policy, s, nstate)
+
+    time_major = her is None
+
+    def gather(rows: Any, mask: jax.Array | None) -> tuple[Any, jax.Array | None]:
+        lanes = parallel.all_gather((rows, mask))  # [B, N, ...] in global lane order
+        if time_major:
+            lanes = jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), lanes)
+        return jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), lanes)
+
+    return Acting(reset=reset, policy=policy, explore=explore, collect=collect, gather=gather, norm=norm, act=act,
+                  fresh_noise=fresh_noise)
