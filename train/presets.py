@@ -25,7 +25,15 @@ from jaxrl_robot.agents.a2c import A2CConfig, A3CConfig
 from jaxrl_robot.agents.ddpg import DDPGConfig
 from jaxrl_robot.agents.ppo import PPOConfig
 
-__all__ = ["a2c_preset", "PPO_PRESETS", "ppo_env_overrides", "ppo_preset", "resolve_preset", "tracking_schedule"]
+__all__ = [
+    "a2c_preset",
+    "distribute",
+    "PPO_PRESETS",
+    "ppo_env_overrides",
+    "ppo_preset",
+    "resolve_preset",
+    "tracking_schedule",
+]
 
 PPO_PRESETS = ("auto", "thesis", "cpu", "fast")
 
@@ -210,8 +218,11 @@ def a2c_preset(
 DDPG_PRESETS = ("auto", "thesis", "cpu", "fast")
 
 
-def ddpg_preset(name: str, env_name: str, episode_length: int, reward: str | None = None) -> DDPGConfig:
-    """The :class:`DDPGConfig` of preset ``name`` for ``env_name`` (and the arm's ``reward``).
+def ddpg_preset(
+    name: str, env_name: str, episode_length: int, reward: str | None = None, distributed: bool = False
+) -> DDPGConfig:
+    """The :class:`DDPGConfig` of preset ``name`` for ``env_name`` (and the arm's ``reward``);
+    with ``distributed``, the distributed DDPG variant of it (:func:`distribute`).
 
     Arm (Tables 3.1-3.2, §3.4.2): the 'episodes' schedule — epochs × 50 cycles × 16 episodes,
     40 updates per cycle, batch 128, memory 10^6, lr 1e-3 / 1e-3, ε 0.05, γ 0.9, PER α 0.6,
@@ -278,4 +289,32 @@ def ddpg_preset(name: str, env_name: str, episode_length: int, reward: str | Non
                           noise_scale=(0.1,))
         presets = {"thesis": {}, "cpu": {},
                    "fast": dict(num_envs=256, updates_per_iteration=64, batch_size=1024, total_steps=5_000_000)}
-    return base.replace(**presets[name])
+    config = base.replace(**presets[name])
+    return distribute(config, name) if distributed else config
+
+
+def distribute(config: DDPGConfig, name: str) -> DDPGConfig:
+    """Distributed DDPG (thesis §4.2) on top of the single learner's preset ``config`` (preset ``name``).
+
+    ``thesis`` and ``cpu``: 4 synchronous workers sharing the ``num_envs`` lanes and 4 collecting
+    workers of ``num_envs / 4`` lanes each, mini-batches of 32 per synchronous worker (128
+    transitions per update), a shared memory of 200 000 and a fetch every 5 iterations (§4.2.2;
+    the tracking rows step one lane per worker, as the thesis's processes did).  ``fast``: 8 + 8
+    workers (a multiple of 1, 2, 4 or 8 GPUs), the single learner's batch split over the 8
+    synchronous workers, memory at least 10^6.  The 'steps' budget counts every lane's steps; it
+    grows with the lanes so that the number of iterations and updates stays the preset's (the
+    thesis's tracking row: each of the 8 workers runs the 1000 episodes).
+    """
+    workers = 8 if name == "fast" else 4
+    changes: dict = dict(distributed=True, sync_workers=workers, collect_workers=workers, fetch_every=5,
+                         collect_lanes=max(1, config.num_envs // workers))
+    if name == "fast":
+        changes.update(batch_size=max(1, config.batch_size // workers), buffer_size=max(config.buffer_size, 1_000_000))
+    else:
+        changes.update(batch_size=32, buffer_size=200_000)
+    if config.num_envs % workers:
+        changes["num_envs"] = workers * changes["collect_lanes"]
+    out = config.replace(**changes)
+    if out.schedule == "steps":
+        out = out.replace(total_steps=config.iterations * out.lanes * out.unroll_length)
+    return out

@@ -11,6 +11,9 @@ import subprocess
 import sys
 import textwrap
 
+import jax
+import numpy as np
+
 from tests.subproc import ROOT, cpu_env
 
 SCRIPT = textwrap.dedent(
@@ -21,6 +24,7 @@ SCRIPT = textwrap.dedent(
     from jaxrl_robot.agents.ddpg import make_trainer
     from jaxrl_robot.checkpoint import Checkpointer
     from tests.agents.test_ddpg import _tiny
+    from tests.agents.test_ddpg_devices import assert_runs_agree
     from tests.replay.toy_goal_env import ToyGoalEnv
 
     assert len(jax.devices()) == 4, jax.devices()
@@ -31,9 +35,6 @@ SCRIPT = textwrap.dedent(
         "steps_ou": (_tiny(schedule="steps", total_steps=128, num_envs=4, unroll_length=4, episode_length=6,
                            updates_per_iteration=2, noise="ou", noise_scale=(0.3,)), 2),
     }
-
-    def close(a, b, what, atol=1e-5):
-        jax.tree.map(lambda x, y: np.testing.assert_allclose(x, y, rtol=1e-5, atol=atol, err_msg=what), a, b)
 
     for cname, (cfg, per_update) in configs.items():
         out = {}
@@ -57,27 +58,11 @@ SCRIPT = textwrap.dedent(
                 resumed, _ = update(restored)
                 jax.tree.map(np.testing.assert_array_equal, jax.device_get(resumed), jax.device_get(state))
             out[name] = (jax.device_get(state), jax.device_get(metrics))
-        s1, m1 = out[1]
+        s1 = out[1][0]
         size = int(s1.replay.size)
         assert size > 0
         for name in ("shard_map", "vmap"):
-            s4, m4 = out[name]
-            what = f"{cname} {name}"
-            # same lanes, same randomness: the same replay contents in the same slots
-            assert int(s4.replay.size) == size and int(s4.replay.insert_pos) == int(s1.replay.insert_pos), what
-            close(s1.replay.data, s4.replay.data, what + " replay")
-            if cfg.per:
-                close(s1.replay.tree, s4.replay.tree, what + " priorities")
-                close(s1.replay.scalars, s4.replay.scalars, what + " max priority, beta")
-            close((s1.actor_params, s1.critic_params), (s4.actor_params, s4.critic_params), what + " params")
-            close((s1.target_actor_params, s1.target_critic_params),
-                  (s4.target_actor_params, s4.target_critic_params), what + " targets")
-            close(s1.obs_stats, s4.obs_stats, what + " obs stats")
-            close((s1.env_state.obs, s1.noise_state), (s4.env_state.obs, s4.noise_state), what + " lanes")
-            assert int(s4.updates) == int(s1.updates) > 0, what
-            assert sorted(m1) == sorted(m4), what
-            for k in m1:
-                np.testing.assert_allclose(m1[k], m4[k], rtol=1e-4, atol=1e-6, err_msg=f"{what} {k}")
+            assert_runs_agree(out[1], out[name], f"{cname} {name}", cfg.per)
         # training moved the networks, so the comparison is not between two initial states
         init = jax.device_get(jax.jit(make_trainer(cfg, env, mesh=parallel.lane_mesh(1)).init)(jax.random.PRNGKey(0)))
         for a, b in ((init.actor_params, s1.actor_params), (init.critic_params, s1.critic_params)):
@@ -96,9 +81,40 @@ SCRIPT = textwrap.dedent(
 )
 
 
-def test_four_fake_devices_match_one_device():
+def _close(a, b, what):
+    jax.tree.map(lambda x, y: np.testing.assert_allclose(x, y, rtol=1e-5, atol=1e-5, err_msg=what), a, b)
+
+
+def assert_runs_agree(run1, run4, what: str, per: bool) -> None:
+    """Two runs' ``(state, metrics)`` (host copies) agree up to float summation order: the same replay
+    contents in the same slots (priorities and β with ``per``), networks, targets, observation
+    statistics, lanes, update count and metrics."""
+    (s1, m1), (s4, m4) = run1, run4
+    assert int(s4.replay.size) == int(s1.replay.size) > 0, what
+    assert int(s4.replay.insert_pos) == int(s1.replay.insert_pos), what
+    _close(s1.replay.data, s4.replay.data, what + " replay")
+    if per:
+        _close(s1.replay.tree, s4.replay.tree, what + " priorities")
+        _close(s1.replay.scalars, s4.replay.scalars, what + " max priority, beta")
+    _close((s1.actor_params, s1.critic_params), (s4.actor_params, s4.critic_params), what + " params")
+    _close((s1.target_actor_params, s1.target_critic_params),
+           (s4.target_actor_params, s4.target_critic_params), what + " targets")  # fmt: skip
+    _close(s1.obs_stats, s4.obs_stats, what + " obs stats")
+    _close((s1.env_state.obs, s1.noise_state), (s4.env_state.obs, s4.noise_state), what + " lanes")
+    assert int(s4.updates) == int(s1.updates) > 0, what
+    assert sorted(m1) == sorted(m4), what
+    for k in m1:
+        np.testing.assert_allclose(m1[k], m4[k], rtol=1e-4, atol=1e-6, err_msg=f"{what} {k}")
+
+
+def run_on_four_devices(script: str) -> None:
+    """Run ``script`` in a Python subprocess on 4 fake CPU devices; it must exit 0 after printing OK."""
     proc = subprocess.run(
-        [sys.executable, "-c", SCRIPT], cwd=ROOT, env=cpu_env(devices=4), capture_output=True, text=True, timeout=600
+        [sys.executable, "-c", script], cwd=ROOT, env=cpu_env(devices=4), capture_output=True, text=True, timeout=600
     )
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     assert "OK" in proc.stdout
+
+
+def test_four_fake_devices_match_one_device():
+    run_on_four_devices(SCRIPT)

@@ -1,8 +1,9 @@
-"""DDPG (thesis §3.1, Algorithm 1) with prioritised (§3.2) and hindsight (§3.3) replay."""
+"""DDPG (thesis §3.1, Algorithm 1) with prioritised (§3.2) and hindsight (§3.3) replay; distributed DDPG (§4.2)."""
 
 from jaxrl_robot.agents.ddpg.acting import make_noise_for
 from jaxrl_robot.agents.ddpg.config import NOISES, SCHEDULES, DDPGConfig
 from jaxrl_robot.agents.ddpg.core import GOAL_API, DDPGState
+from jaxrl_robot.agents.ddpg.distributed import Collectors, DistributedDDPGState, make_distributed_trainer
 from jaxrl_robot.agents.ddpg.learner import SINGLE, Workers, make_networks, make_optimizer, worker_shards
 from jaxrl_robot.agents.ddpg.losses import (
     actor_loss,
@@ -23,15 +24,18 @@ __all__ = [
     "OUTPUTS",
     "SCHEDULES",
     "SINGLE",
+    "Collectors",
     "DDPGActor",
     "DDPGConfig",
     "DDPGCritic",
     "DDPGState",
+    "DistributedDDPGState",
     "Workers",
     "actor_loss",
     "clipped_double_q",
     "critic_loss",
     "linear_noise_factor",
+    "make_distributed_trainer",
     "make_networks",
     "make_noise_for",
     "make_optimizer",

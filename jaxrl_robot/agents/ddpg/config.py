@@ -28,6 +28,9 @@ class DDPGConfig:
     * ``"steps"`` (thesis §3.5, Table 3.3): lanes step continuously with auto-reset; after
       every ``unroll_length`` steps of all lanes, ``updates_per_iteration`` updates, once
       ``learning_starts`` transitions are stored (5000 in the thesis).
+
+    With ``distributed`` (thesis §4.2), either schedule runs with synchronous and collecting
+    workers (``jaxrl_robot.agents.ddpg.distributed``).
     """
 
     schedule: str = "episodes"
@@ -39,7 +42,7 @@ class DDPGConfig:
     updates_per_cycle: int = 40
     """'episodes' schedule: gradient updates after each cycle."""
     total_steps: int = 200_000
-    """'steps' schedule: environment steps of the run (all lanes together)."""
+    """'steps' schedule: environment steps of the run (all lanes together, collecting workers' included)."""
     unroll_length: int = 1
     """'steps' schedule: steps of every lane between update phases."""
     updates_per_iteration: int = 1
@@ -51,7 +54,7 @@ class DDPGConfig:
     episode_length: int = 0
     """Time limit in steps (0: the environment's own ``episode_length``)."""
     batch_size: int = 128
-    """Mini-batch size b_n."""
+    """Mini-batch size b_n (of each synchronous worker when distributed)."""
     buffer_size: int = 1_000_000
     """Replay memory capacity C."""
     actor_lr: float = 1e-3
@@ -152,13 +155,38 @@ class DDPGConfig:
     ``policy_delay`` for the actor (updates skipped before ``learning_starts`` leave the end factor
     slightly higher).  Smaller late steps keep the policy from drifting away late in training.
     1: constant learning rates (Algorithm 1)."""
+    distributed: bool = False
+    """Distributed DDPG (thesis §4.2, Algorithms 4-6): sync_workers synchronous workers share the
+    num_envs lanes, act with the latest parameters, each sample its own prioritised mini-batch of
+    batch_size from the shared replay and average their gradients (m · batch_size transitions per
+    update); collect_workers collecting workers only act, in collect_lanes lanes each, with a
+    parameter copy fetched every fetch_every iterations, and store their transitions with
+    priorities from their own critic copy."""
+    sync_workers: int = 4
+    """Distributed: synchronous workers m (a divisor of num_envs, a multiple of the device count)."""
+    collect_workers: int = 4
+    """Distributed: collecting workers (0: none; a multiple of the device count)."""
+    collect_lanes: int = 1
+    """Distributed: lanes of each collecting worker."""
+    fetch_every: int = 5
+    """Distributed: a collecting worker fetches the global parameters every this many iterations
+    (steps with unroll_length 1), the workers' fetches spread evenly over that period."""
+    collect_noise_factors: tuple[float, ...] = ()
+    """Distributed: the exploration noise of each collecting worker times this factor (one value
+    for all or one per worker; empty: 1)."""
+
+    @property
+    def lanes(self) -> int:
+        """Lanes that act: ``num_envs``, plus the collecting workers' lanes when distributed."""
+        return self.num_envs + (self.collect_workers * self.collect_lanes if self.distributed else 0)
 
     @property
     def iterations(self) -> int:
-        """Training iterations: cycles ('episodes') or unroll + update phases ('steps')."""
+        """Training iterations: cycles ('episodes') or unroll + update phases ('steps'; ``total_steps``
+        counts the steps of every lane)."""
         if self.schedule == "episodes":
             return self.epochs * self.cycles_per_epoch
-        return max(1, -(-self.total_steps // (self.num_envs * self.unroll_length)))
+        return max(1, -(-self.total_steps // (self.lanes * self.unroll_length)))
 
     def validate(self) -> DDPGConfig:
         """Raise ``ConfigError`` naming the first invalid field; return self."""
@@ -212,7 +240,25 @@ class DDPGConfig:
             raise ConfigError(f"reward_shift={self.reward_shift!r} must be a finite number")
         if self.termination_metric and not self.termination_metric.isidentifier():
             raise ConfigError(f"termination_metric={self.termination_metric!r} must be empty or a metric name")
+        if self.distributed:
+            self._validate_workers()
         return self
+
+    def _validate_workers(self) -> None:
+        """The distributed fields (thesis §4.2)."""
+        for name, lo in (("sync_workers", 1), ("collect_workers", 0), ("collect_lanes", 1), ("fetch_every", 1)):
+            check_range(name, getattr(self, name), lo)
+            if int(getattr(self, name)) != getattr(self, name):
+                raise ConfigError(f"{name}={getattr(self, name)!r} must be an integer")
+        if self.num_envs % self.sync_workers:
+            raise ConfigError(f"num_envs={self.num_envs} must be a multiple of sync_workers ({self.sync_workers})")
+        if len(self.collect_noise_factors) not in (0, 1, self.collect_workers):
+            raise ConfigError(
+                f"collect_noise_factors={self.collect_noise_factors!r} must have 0, 1 or collect_workers "
+                f"({self.collect_workers}) values"
+            )
+        for i, v in enumerate(self.collect_noise_factors):
+            check_range(f"collect_noise_factors[{i}]", v, 0.0)
 
     def replace(self, **changes) -> DDPGConfig:
         """A copy with ``changes`` applied (the original is not modified)."""

@@ -122,7 +122,7 @@ def setup(config: DDPGConfig, env: Env, mesh: jax.sharding.Mesh | None, iteratio
 
     Raises:
       ConfigError: invalid settings, HER on an env without the goal API, or a replay too small
-        for one iteration's rows.
+        for one iteration's rows (of every lane, collecting workers included).
       ValueError: ``num_envs`` does not divide over the mesh's devices.
     """
     config.validate()
@@ -155,7 +155,7 @@ def setup(config: DDPGConfig, env: Env, mesh: jax.sharding.Mesh | None, iteratio
     critic_tx = make_optimizer(config.critic_lr, config.max_grad_norm, config.lr_end_factor, critic_steps)
     her = make_her(env, config.her, config.her_k) if config.her != "none" else None
     steps = T if episodes else config.unroll_length
-    rows = config.num_envs * steps * (her.copies if her is not None else 1)
+    rows = config.lanes * steps * (her.copies if her is not None else 1)
     if rows > config.buffer_size:
         raise ConfigError(
             f"buffer_size={config.buffer_size} is out of range; one iteration stores up to {rows} "
@@ -175,7 +175,7 @@ def setup(config: DDPGConfig, env: Env, mesh: jax.sharding.Mesh | None, iteratio
         config=config, mesh=mesh, chunk=chunk, num_updates=-(-config.iterations // chunk), episode_length=T,
         local_lanes=local_lanes, obs_size=obs_size, action_size=action_size, actor=actor, critic=critic,
         actor_tx=actor_tx, critic_tx=critic_tx, replay=replay, acting=acting, learner=learner,
-        updates_per_iteration=per_iteration, steps_per_iteration=config.num_envs * steps,
+        updates_per_iteration=per_iteration, steps_per_iteration=config.lanes * steps,
     )
 
 

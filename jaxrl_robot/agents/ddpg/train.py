@@ -14,6 +14,9 @@ steps auto-resetting lanes continuously and updates after every ``unroll_length`
 Acting is :mod:`~jaxrl_robot.agents.ddpg.acting`, the update (Algorithm 1, lines 9–17)
 :mod:`~jaxrl_robot.agents.ddpg.learner`.
 
+With ``config.distributed`` :func:`make_trainer` builds distributed DDPG (thesis §4.2,
+:mod:`~jaxrl_robot.agents.ddpg.distributed`) from the same pieces.
+
 The replay buffer lives in the training state on the device, so a checkpoint of the state
 resumes a run exactly.
 
@@ -37,6 +40,7 @@ from jaxrl_robot import parallel
 from jaxrl_robot.agents.ddpg import core
 from jaxrl_robot.agents.ddpg.config import DDPGConfig
 from jaxrl_robot.agents.ddpg.core import DDPGState
+from jaxrl_robot.agents.ddpg.distributed import make_distributed_trainer
 from jaxrl_robot.agents.ddpg.learner import SINGLE
 from jaxrl_robot.types import Metrics, Trainer
 
@@ -53,7 +57,7 @@ def make_trainer(
     """Build the DDPG :class:`~jaxrl_robot.types.Trainer` for ``env``.
 
     Args:
-      config: hyper-parameters (validated here).
+      config: hyper-parameters (validated here); ``config.distributed`` selects distributed DDPG.
       env: an *unbatched* env; with HER it must provide the goal-conditioned API
         (``core.GOAL_API``) and ``state.info["ee_pos"]``.
       mesh: device mesh from ``parallel.lane_mesh`` (default: all devices); the ``num_envs``
@@ -62,8 +66,10 @@ def make_trainer(
         ``cycles_per_epoch`` cycles for 'episodes', 1 for 'steps').
     Raises:
       ConfigError: invalid settings, or HER on an env without the goal API.
-      ValueError: ``num_envs`` does not divide over the mesh's devices.
+      ValueError: ``num_envs`` (or, distributed, the workers) do not divide over the mesh's devices.
     """
+    if config.distributed:
+        return make_distributed_trainer(config, env, mesh=mesh, iterations_per_update=iterations_per_update)
     s = core.setup(config, env, mesh, iterations_per_update)
 
     def iteration(state: DDPGState, lane_ids: jax.Array) -> tuple[DDPGState, tuple]:
@@ -103,7 +109,7 @@ def make_train(
 ) -> Callable[[jax.Array], tuple[DDPGState, Metrics]]:
     """``train(key) -> (final state, metrics [num_updates])``: the whole run, pure and jittable.
 
-    ``mesh``: as :func:`make_trainer` (default: all devices).
+    ``mesh``: as :func:`make_trainer` (default: all devices); ``config.distributed`` as there.
     """
     trainer = make_trainer(config, env, mesh=mesh, iterations_per_update=iterations_per_update)
 

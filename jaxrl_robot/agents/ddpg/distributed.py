@@ -1,0 +1,244 @@
+"""Distributed DDPG (thesis §4.2, Algorithms 4–6): synchronous and collecting workers, one shared replay.
+
+>>> config = DDPGConfig(schedule="steps", per=True, distributed=True, sync_workers=4, collect_workers=4)
+>>> trainer = make_trainer(config, env)        # jaxrl_robot.agents.ddpg.make_trainer dispatches here
+
+The acting, the replay, the update and the losses are the single learner's
+(:mod:`~jaxrl_robot.agents.ddpg.core`); this module adds the workers.
+
+Where things live:
+
+* **Synchronous workers** (Algorithm 5) are the ``m = sync_workers`` shards of the ``num_envs``
+  lanes: worker ``w`` owns lanes ``[w·n, (w+1)·n)``, ``n = num_envs / m``, and the workers are
+  split over the device mesh (``m / D`` per device, a vmapped local worker axis).  They act with
+  the latest global parameters.  In every update each worker samples its own mini-batch of
+  ``batch_size`` and computes its gradients; their mean is applied once (Algorithm 4) and every
+  worker's sampled indices and new priorities are written back
+  (:func:`~jaxrl_robot.agents.ddpg.learner.worker_shards`).  A worker's target networks follow
+  the same global parameters as every other worker's, so one replicated set stands for all.
+* **Collecting workers** (Algorithm 6): ``collect_workers`` further groups of ``collect_lanes``
+  lanes, split over the devices, that only act, each with its own noise processes (and, with
+  ``collect_noise_factors``, its own noise scale) and its own copy of the actor, the critic and
+  the observation statistics (:class:`Collectors`).
+* **The global networks** (Algorithm 4) and **the shared replay** are replicated: every
+  iteration's rows (synchronous lanes first, then collecting lanes, each in global lane order)
+  are all-gathered and added on every device, so every device holds the same memory.
+
+Initial priorities: every worker stores its transitions with the priority ``|δ|`` (clipped,
+``+ ε``) from its own networks — the synchronous workers' are the global ones, a collecting
+worker's its stale copy — with ``δ = r + γ (1 − d) Q(s', μ(s')) − Q(s, a)`` (Algorithms 5–6,
+line 9), instead of the single learner's largest priority.
+
+Global sampling rule: worker ``w`` draws its mini-batch by stratified sampling over the *whole*
+memory: ``[0, Σ_k p_k^α)`` is cut into ``batch_size`` equal segments, one point is drawn
+uniformly in each with the key ``fold_in(k, w)``, and the slot whose interval of the prefix sums
+holds the point is taken (Fig. 3.2).  A slot ``i`` is therefore expected ``batch_size · P(i)``
+times in each worker's batch and ``m · batch_size · P(i)`` times per update, with
+``P(i) = p_i^α / Σ_k p_k^α`` (Eq. 3.9); the workers' draws are independent given the memory.
+Importance weights are normalised within each worker's batch (Eq. 3.10), as each worker
+computes its gradient as DDPG does.
+
+Staleness rule: collecting worker ``c`` (global index, ``C = collect_workers``) fetches the
+global parameters at the start of every iteration ``t`` with ``(t − φ_c) mod F = 0``,
+``φ_c = ⌊c·F / C⌋`` and ``F = fetch_every`` — the fetches are spread over the period as the
+thesis's asynchronous processes would spread them, so the collectors act with different
+policies.  A copy fetched at ``t`` acts in iterations ``t … t + F − 1`` (staleness 0 … F − 1,
+reported as ``staleness_mean`` / ``staleness_max``) and is exactly ``F`` iterations old when it
+is replaced; before its first fetch a worker holds the initial parameters (fetched at 0).
+
+Metrics: the usual episode metrics are the synchronous workers' (thesis Fig. 4.17: only they
+act with the global parameters); ``collect_*`` are the collecting workers'.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from brax.envs.base import Env, State
+from flax import struct
+
+from jaxrl_robot import parallel
+from jaxrl_robot.agents.ddpg import core
+from jaxrl_robot.agents.ddpg.acting import LanePolicy, tree_where
+from jaxrl_robot.agents.ddpg.config import DDPGConfig
+from jaxrl_robot.agents.ddpg.core import DDPGState
+from jaxrl_robot.agents.ddpg.learner import worker_shards
+from jaxrl_robot.noise import NoiseState
+from jaxrl_robot.types import Metrics, RunningStats, Trainer
+
+__all__ = ["Collectors", "DistributedDDPGState", "fetch_phases", "make_distributed_trainer"]
+
+
+@struct.dataclass
+class Collectors:
+    """The collecting workers, ``C`` workers of ``L`` lanes, split over devices.
+
+    Attributes:
+      env_state: ``State [C·L]`` (worker ``c`` owns lanes ``[c·L, (c+1)·L)``).
+      noise_state: ``NoiseState [C·L, A]``.
+      actor_params, critic_params: ``[C, ...]`` each worker's copy of θ^μ, θ^Q.
+      obs_stats: ``RunningStats [C, ...]`` each worker's copy of the observation statistics.
+      fetched: ``[C] int32`` the iteration at which each copy was fetched.
+    """
+
+    env_state: State
+    noise_state: NoiseState
+    actor_params: Any
+    critic_params: Any
+    obs_stats: RunningStats
+    fetched: jax.Array
+
+
+@struct.dataclass
+class DistributedDDPGState(DDPGState):
+    """:class:`~jaxrl_robot.agents.ddpg.core.DDPGState` (the global networks, the shared replay and the
+    synchronous workers' lanes) plus ``collectors`` (:class:`Collectors`, None without collecting workers)."""
+
+    collectors: Collectors | None
+
+
+def fetch_phases(worker_ids: jax.Array, collect_workers: int, fetch_every: int) -> jax.Array:
+    """``φ_c = ⌊c·F / C⌋``: collecting worker ``c`` fetches at iterations ``t ≡ φ_c (mod F)``: ``[n] -> [n]``."""
+    return (worker_ids * fetch_every) // max(collect_workers, 1)
+
+
+def _groups(x: jax.Array, n: int) -> jax.Array:
+    """``[n·l, ...] -> [n, l, ...]``."""
+    return x.reshape((n, -1) + x.shape[1:])
+
+
+def _ungroup(x: jax.Array) -> jax.Array:
+    """``[n, l, ...] -> [n·l, ...]``."""
+    return x.reshape((-1,) + x.shape[2:])
+
+
+def make_distributed_trainer(
+    config: DDPGConfig,
+    env: Env,
+    *,
+    mesh: jax.sharding.Mesh | None = None,
+    iterations_per_update: int | None = None,
+) -> Trainer:
+    """The distributed DDPG :class:`~jaxrl_robot.types.Trainer` (arguments as ``make_trainer``).
+
+    Raises:
+      ConfigError: as ``make_trainer``; ``distributed`` must be set.
+      ValueError: ``num_envs``, ``sync_workers`` or ``collect_workers`` do not divide over the devices.
+    """
+    if not config.distributed:
+        raise ValueError("make_distributed_trainer needs distributed=True")
+    s = core.setup(config, env, mesh, iterations_per_update)
+    devices = s.mesh.shape[parallel.LANES]
+    for name in ("sync_workers", "collect_workers"):
+        if getattr(config, name) % devices:
+            raise ValueError(f"{name}={getattr(config, name)} must be a multiple of the number of devices ({devices})")
+    local_workers = config.sync_workers // devices
+    C, F = config.collect_workers, config.fetch_every
+    local_collectors = C // devices
+    noise_factors = jnp.broadcast_to(jnp.asarray(config.collect_noise_factors or (1.0,), jnp.float32), (C,))
+    lanes, same = parallel.P(parallel.LANES), parallel.P()
+
+    def copies_of(state: DDPGState, n: int) -> tuple:
+        """The global ``(actor, critic, obs stats)`` repeated ``n`` times: ``[n, ...]`` leaves."""
+        fresh = (state.actor_params, state.critic_params, state.obs_stats)
+        return jax.tree.map(lambda x: jnp.broadcast_to(x, (n,) + x.shape), fresh)
+
+    def init(key: jax.Array) -> DistributedDDPGState:
+        base = core.init_state(s, key)
+        fields = {name: getattr(base, name) for name in DDPGState.__dataclass_fields__}
+        if not C:
+            return DistributedDDPGState(**fields, collectors=None)
+
+        def start(keys: jax.Array, state: DDPGState) -> Collectors:
+            env_state, noise_state = s.acting.reset(keys)
+            actor, critic, stats = copies_of(state, local_collectors)
+            return Collectors(env_state, noise_state, actor, critic, stats, jnp.zeros((local_collectors,), jnp.int32))
+
+        keys = jax.random.split(jax.random.fold_in(key, 1), C * config.collect_lanes)
+        collectors = parallel.shard_lanes(start, s.mesh, (lanes, same), lanes)(keys, base)
+        return DistributedDDPGState(**fields, collectors=collectors)
+
+    def fetch(state: DistributedDDPGState, ids: jax.Array) -> tuple[Collectors, jax.Array]:
+        """This device's collectors ``ids [c]`` after the fetches due at ``state.iteration``, and their staleness."""
+        col, t = state.collectors, state.iteration
+        due = (t - fetch_phases(ids, C, F)) % F == 0
+        actor, critic, stats = tree_where(due, copies_of(state, ids.shape[0]),
+                                          (col.actor_params, col.critic_params, col.obs_stats))
+        col = col.replace(actor_params=actor, critic_params=critic, obs_stats=stats,
+                          fetched=jnp.where(due, t, col.fetched))
+        return col, t - col.fetched
+
+    def group_policy(lane_ids: jax.Array, col: Collectors, factors: jax.Array | None) -> LanePolicy:
+        """Each collector acts in its lanes with its own copy: ``explore`` vmapped over this device's collectors."""
+        n = local_collectors
+
+        def policy(key: jax.Array, obs: jax.Array, nstate: NoiseState) -> tuple[jax.Array, NoiseState]:
+            def one(ids, params, stats, o, ns, f):
+                return s.acting.explore(key, ids, params, stats, o, ns, f)
+
+            grouped = jax.tree.map(lambda x: _groups(x, n), (lane_ids, obs, nstate))
+            a, nstate = jax.vmap(one)(grouped[0], col.actor_params, col.obs_stats, grouped[1], grouped[2], factors)
+            return jax.tree.map(_ungroup, (a, nstate))
+
+        return policy
+
+    def priorities(copies: tuple, rows: Any, n: int) -> jax.Array:
+        """Initial priorities ``[n·l, N]`` of rows ``[n·l, N]``: lane group ``g`` under the copies ``[g]``
+        of ``copies = (actor, critic, stats)`` with ``[n, ...]`` leaves."""
+        groups = jax.tree.map(lambda x: x.reshape((n, -1) + x.shape[2:]), rows)  # [n, l·N, ...]
+        return jax.vmap(s.learner.priorities)(*copies, groups).reshape(rows.reward.shape)
+
+    def iteration(state: DistributedDDPGState, ids: dict[str, jax.Array]) -> tuple[DistributedDDPGState, tuple]:
+        key, k_act, k_learn = jax.random.split(state.key, 3)
+        factor = core.noise_factor(config, state.iteration)
+        policy = s.acting.policy(ids["lanes"], state.actor_params, state.obs_stats, factor)
+        got = s.acting.collect(k_act, ids["lanes"], policy, state.env_state, state.noise_state)
+        prio = priorities(copies_of(state, 1), got.rows, 1) if config.per else None
+        (rows, prio), mask = s.acting.gather((got.rows, prio), got.mask)
+        state = state.replace(env_state=got.env_state, noise_state=got.noise_state)
+        extra = {}
+        if C:
+            col, staleness = fetch(state, ids["collectors"])
+            factors = noise_factors[ids["collectors"]]
+            factors = factors if factor is None else factors * factor
+            col_got = s.acting.collect(k_act, ids["collect_lanes"], group_policy(ids["collect_lanes"], col, factors),
+                                       col.env_state, col.noise_state)
+            copies = (col.actor_params, col.critic_params, col.obs_stats)
+            col_prio = priorities(copies, col_got.rows, local_collectors) if config.per else None
+            (col_rows, col_prio), col_mask = s.acting.gather((col_got.rows, col_prio), col_got.mask)
+            rows, prio, mask = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), (rows, prio, mask),
+                                            (col_rows, col_prio, col_mask))
+            state = state.replace(collectors=col.replace(env_state=col_got.env_state, noise_state=col_got.noise_state))
+            extra = {"episodes": col_got.sums, "staleness": parallel.all_gather(staleness)}
+        state = core.store(s, state, rows, mask, prio)
+        state, sums, count = s.learner.learn(state, k_learn, s.updates_per_iteration, worker_shards(ids["workers"]))
+        state = state.replace(key=key, iteration=state.iteration + 1)
+        return state, (sums, count, got.sums, extra)
+
+    def chunk_fn(state: DistributedDDPGState) -> tuple[DistributedDDPGState, Metrics]:
+        ids = {
+            "lanes": parallel.global_lane_ids(s.local_lanes),
+            "workers": parallel.global_lane_ids(local_workers),
+            "collectors": parallel.global_lane_ids(local_collectors),
+            "collect_lanes": config.num_envs + parallel.global_lane_ids(local_collectors * config.collect_lanes),
+        }
+        state, metrics, extra = core.run_chunk(s, state, lambda st: iteration(st, ids))
+        if C:
+            metrics.update(core.episode_means(jax.tree.map(jnp.sum, extra["episodes"]), "collect_"))
+            staleness = extra["staleness"].astype(jnp.float32)  # [chunk, C]
+            metrics["staleness_mean"] = jnp.mean(staleness)
+            metrics["staleness_max"] = jnp.max(staleness)
+        return state, metrics
+
+    specs = core.state_specs(DistributedDDPGState, collectors=lanes if C else None)
+    update = parallel.shard_lanes(chunk_fn, s.mesh, in_specs=(specs,), out_specs=(specs, same))
+    return Trainer(
+        init=init,
+        update=update,
+        policy=functools.partial(core.greedy_policy, s),
+        num_updates=s.num_updates,
+        env_steps_per_update=s.steps_per_iteration * s.chunk,
+    )
