@@ -14,6 +14,15 @@ Examples (the rows of thesis Table 3.1 and the DDPG rows of Tables 4.3-4.5)::
     python -m train.ddpg --env unicycle --trajectory ellipse --preset thesis
     python -m train.ddpg --resume runs/ddpg-arm7-20260101-120000
 
+Distributed DDPG (thesis §4.2, Algorithms 4-6) is ``--distributed``: the preset's distributed
+variant (``thesis``: 4 synchronous workers with 32 transitions each per update, 4 collecting
+workers fetching the parameters every 5 steps, a shared memory of 200 000), which
+``--sync-workers``, ``--collect-workers``, ``--collect-lanes``, ``--fetch-every`` and
+``--collect-noise-factors`` change::
+
+    python -m train.ddpg --env scara --preset thesis --distributed
+    python -m train.ddpg --env unicycle --trajectory sine --distributed --sync-workers 8
+
 The run options are ``train.common.RunOptions``; ``--trajectory`` and the default of ``--chunks``
 are DDPG's own. A run writes ``runs/ddpg-<env>-<time>/`` (config, metrics.csv, TensorBoard, checkpoints with
 the replay memory and sum-tree, so ``--resume`` continues exactly; figures; ``eval.json``).
@@ -21,6 +30,7 @@ the replay memory and sum-tree, so ``--resume`` continues exactly; figures; ``ev
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 from dataclasses import dataclass, field
 from typing import Annotated, Any
@@ -32,7 +42,7 @@ from jaxrl_robot.agents.ddpg import DDPGConfig
 from train import common
 from train.presets import ddpg_preset
 
-__all__ = ["CLI", "Args", "OffPolicyOptions", "build", "main", "parse"]
+__all__ = ["CLI", "Args", "OffPolicyCLI", "OffPolicyOptions", "build", "distributed_flag", "main", "parse"]
 
 
 @dataclass
@@ -47,7 +57,11 @@ class OffPolicyOptions(common.RunOptions):
 
 @dataclass
 class Args(OffPolicyOptions):
-    """DDPG (thesis ch. 3) with optional PER and HER on an MJX robot environment."""
+    """DDPG (thesis ch. 3) with optional PER and HER on an MJX robot environment.
+    --distributed: distributed DDPG (thesis §4.2), synchronous workers averaging their gradients
+    and collecting workers with stale parameter copies, sharing one prioritised replay; the
+    defaults become the preset's distributed variant (thesis: 4 + 4 workers, 4 x 32 transitions
+    per update, memory 200 000)."""
 
     ddpg: Annotated[DDPGConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=DDPGConfig)
     """DDPG hyper-parameters (defaults: the preset's values)."""
@@ -59,10 +73,29 @@ def env_settings(args: OffPolicyOptions) -> dict[str, Any]:
     return {**trajectory, **common.env_overrides(args)}
 
 
-def preset(args: OffPolicyOptions, env: Any) -> DDPGConfig:
-    """The :class:`DDPGConfig` of ``args.preset`` for ``env`` and its reward (the env's default if not given)."""
+def preset(args: OffPolicyOptions, env: Any, distributed: bool = False) -> DDPGConfig:
+    """The :class:`DDPGConfig` of ``args.preset`` for ``env`` and its reward (the env's default if not given);
+    its distributed variant with ``distributed``."""
     reward = args.reward or getattr(getattr(env, "config", None), "reward", None)
-    return ddpg_preset(args.preset, args.env, common.episode_length(env), reward)
+    return ddpg_preset(args.preset, args.env, common.episode_length(env), reward, distributed=distributed)
+
+
+def distributed_flag(argv: list[str]) -> bool:
+    """Whether the command line asks for distributed DDPG: the last of ``--distributed`` / ``--no-distributed``."""
+    flags = [a for a in argv if a in ("--distributed", "--no-distributed")]
+    return bool(flags) and flags[-1] == "--distributed"
+
+
+@dataclass(frozen=True)
+class OffPolicyCLI(common.AlgorithmCLI):
+    """An :class:`~train.common.AlgorithmCLI` whose preset also depends on ``--distributed``
+    (read ahead of the full parse, like ``--env``); ``preset`` takes ``distributed=``."""
+
+    def parse(self, argv: list[str] | None = None) -> Any:
+        argv = sys.argv[1:] if argv is None else list(argv)
+        flag = distributed_flag(argv)
+        ahead = dataclasses.replace(self, preset=lambda args, env: self.preset(args, env, distributed=flag))
+        return common.AlgorithmCLI.parse(ahead, argv)
 
 
 def make_trainer(args: OffPolicyOptions, env: Any, cfg: DDPGConfig, mesh: Mesh):
@@ -78,7 +111,7 @@ def make_trainer(args: OffPolicyOptions, env: Any, cfg: DDPGConfig, mesh: Mesh):
     return make_ddpg_trainer(cfg, env, mesh=mesh, iterations_per_update=per_chunk), per_chunk
 
 
-CLI = common.AlgorithmCLI(
+CLI = OffPolicyCLI(
     name="ddpg", args_type=Args, config_type=DDPGConfig, preset=preset, make_trainer=make_trainer,
     env_settings=env_settings, env_fields=("trajectory",),
 )  # fmt: skip

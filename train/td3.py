@@ -15,6 +15,7 @@ Examples::
     python -m train.td3 --env scara --preset thesis
     python -m train.td3 --env arm7 --reward sparse --her future --her-k 4
     python -m train.td3 --resume runs/td3-unicycle-20260101-120000
+    python -m train.td3 --env scara --preset thesis --distributed   # distributed TD3 (§4.2 workers)
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from typing import Annotated, Any
 import tyro
 
 from jaxrl_robot.agents.ddpg import DDPGConfig
-from train import common, ddpg
+from train import ddpg
 
 __all__ = ["CLI", "TD3_SETTINGS", "Args", "build", "main", "parse", "preset"]
 
@@ -36,7 +37,10 @@ TD3_SETTINGS: dict[str, Any] = dict(twin_critics=True, target_noise=0.2, target_
 
 @dataclass
 class Args(ddpg.OffPolicyOptions):
-    """TD3 (thesis §6.2): DDPG with twin critics, target smoothing and delayed policy updates."""
+    """TD3 (thesis §6.2): DDPG with twin critics, target smoothing and delayed policy updates.
+    --distributed: with the synchronous and collecting workers of distributed DDPG (thesis §4.2)
+    on the preset's distributed variant (thesis: 4 + 4 workers, 4 x 32 transitions per update,
+    memory 200 000)."""
 
     td3: Annotated[DDPGConfig, tyro.conf.OmitArgPrefixes] = field(
         default_factory=lambda: DDPGConfig(**TD3_SETTINGS)
@@ -44,12 +48,12 @@ class Args(ddpg.OffPolicyOptions):
     """TD3 hyper-parameters (defaults: DDPG's preset for the env with the TD3 settings)."""
 
 
-def preset(args: ddpg.OffPolicyOptions, env: Any) -> DDPGConfig:
-    """DDPG's preset for ``env`` (:func:`train.ddpg.preset`) with :data:`TD3_SETTINGS`."""
-    return ddpg.preset(args, env).replace(**TD3_SETTINGS)
+def preset(args: ddpg.OffPolicyOptions, env: Any, distributed: bool = False) -> DDPGConfig:
+    """DDPG's preset for ``env`` (:func:`train.ddpg.preset`, distributed or not) with :data:`TD3_SETTINGS`."""
+    return ddpg.preset(args, env, distributed=distributed).replace(**TD3_SETTINGS)
 
 
-CLI = common.AlgorithmCLI(
+CLI = ddpg.OffPolicyCLI(
     name="td3", args_type=Args, config_type=DDPGConfig, preset=preset, make_trainer=ddpg.make_trainer,
     env_settings=ddpg.env_settings, env_fields=("trajectory",),
 )  # fmt: skip
