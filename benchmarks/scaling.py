@@ -35,7 +35,7 @@ from typing import Any
 import jax
 
 import envs_mjx
-from benchmarks.train_throughput import RESULTS, bench_brax, bench_ours, device_label
+from benchmarks.train_throughput import RESULTS, bench_brax, bench_ours, device_label, write_results
 from jaxrl_robot import parallel
 
 ENV_CONFIGS = {"arm7": {"mode": "pd"}, "unicycle": {"mode": "dynamic"}, "scara": {}}
@@ -147,6 +147,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         with open(args.brax_only, "w") as f:
             json.dump(rows, f)
         return {"runs": rows}
+    os.makedirs(args.out, exist_ok=True)
     runs = [r for e in args.envs for r in run_ours(e, args)]
     if args.brax:
         runs += _brax_in_subprocess(args, os.path.join(args.out, ".brax_rows.json"))
@@ -167,13 +168,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "env_configs": {e: ENV_CONFIGS[e] for e in args.envs},
         "runs": runs,
     }
-    os.makedirs(args.out, exist_ok=True)
-    stem = os.path.join(args.out, f"{result['device']}x{result['gpus']}-scaling")
-    with open(stem + ".json", "w") as f:
-        json.dump(result, f, indent=2, default=float)
-    with open(stem + ".md", "w") as f:
-        f.write(to_markdown(result))
-    print(to_markdown(result))
+    write_results(os.path.join(args.out, f"{result['device']}x{result['gpus']}-scaling"), result, to_markdown(result))
     return result
 
 

@@ -98,6 +98,16 @@ def bench_brax(env: Any, lanes: int, unroll: int, chunk_iters: int, repeats: int
     return {"impl": "brax.ppo", "lanes": lanes, "unroll": unroll, "steps_per_s": out["timed_sps_median"], **out}
 
 
+def write_results(stem: str, result: dict[str, Any], markdown: str) -> None:
+    """Write ``stem.json`` (``result``) and ``stem.md`` (``markdown``), creating the folder; print the table."""
+    os.makedirs(os.path.dirname(stem) or ".", exist_ok=True)
+    with open(stem + ".json", "w") as f:
+        json.dump(result, f, indent=2, default=float)
+    with open(stem + ".md", "w") as f:
+        f.write(markdown)
+    print(markdown)
+
+
 def to_markdown(result: dict[str, Any]) -> str:
     lines = [
         f"# PPO training throughput on arm7 ({result['env_config']['mode']}) — {result['device']}",
@@ -184,13 +194,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         result["ratio"] = ours[lanes] / theirs[lanes]
         result["best_ratio"] = max(ours.values()) / max(theirs.values())
         print(f"ratio ours/brax at {lanes} lanes: {result['ratio']:.2f}x; best/best {result['best_ratio']:.2f}x")
-    os.makedirs(args.out, exist_ok=True)
-    stem = os.path.join(args.out, f"{result['device']}-train_throughput-{mode}")
-    with open(stem + ".json", "w") as f:
-        json.dump(result, f, indent=2)
-    with open(stem + ".md", "w") as f:
-        f.write(to_markdown(result))
-    print(to_markdown(result))
+    write_results(os.path.join(args.out, f"{result['device']}-train_throughput-{mode}"), result, to_markdown(result))
     return result
 
 
