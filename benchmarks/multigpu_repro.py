@@ -12,9 +12,7 @@ Variants:
   jit_sharded     ``jax.jit`` with ``NamedSharding`` in/out shardings and no shard_map;
   shard_map+<F>   shard_map with one XLA flag ``F`` added to ``XLA_FLAGS`` (e.g. autotune off);
   shard_map_no_shardy   shard_map with ``jax_use_shardy_partitioner=False``;
-  trainer         ``parallel.shard_lanes`` with its default implementation for the mesh;
-  <variant>@<T>   the variant under a mock GPU topology ``T`` (``JAX_MOCK_GPU_TOPOLOGY``, e.g.
-                  ``1x2x1``): compiles for several GPUs on one (compile only when a device is remote).
+  trainer         ``parallel.shard_lanes`` with its default implementation for the mesh.
 """
 
 from __future__ import annotations
@@ -75,9 +73,6 @@ def child(variant: str, lanes: int, steps: int) -> None:
     spec = jax.ShapeDtypeStruct(keys.shape, keys.dtype, sharding=parallel.lane_sharding(mesh))
     compiled = fn.lower(spec).compile()
     t1 = time.perf_counter()
-    if any(d.process_index != jax.process_index() for d in mesh.devices.flat):  # mock topology: compile only
-        print(json.dumps({"variant": variant, "devices": n_dev, "compile_s": round(t1 - t0, 2), "ran": False}))
-        return
     obs, r = compiled(jax.device_put(keys, parallel.lane_sharding(mesh)))
     jax.block_until_ready(obs)
     print(json.dumps({"variant": variant, "devices": n_dev, "compile_s": round(t1 - t0, 2),
@@ -99,13 +94,11 @@ def main() -> None:
     rows = []
     for v in a.variants.split(","):
         env = dict(os.environ)
-        if "@" in v:  # a mock GPU topology (slices x hosts x devices per host) on the GPUs at hand
-            env["JAX_MOCK_GPU_TOPOLOGY"] = v.split("@", 1)[1]
         if "+" in v:
             env["XLA_FLAGS"] = (env.get("XLA_FLAGS", "") + " " + FLAGS[v.split("+", 1)[1]]).strip()
         t0 = time.time()
         try:
-            base = v.split("+")[0].split("@")[0]
+            base = v.split("+")[0]
             cmd = [sys.executable, "-X", "faulthandler", "-m", "benchmarks.multigpu_repro", "--child", base,
                    "--lanes", str(a.lanes), "--steps", str(a.steps)]  # fmt: skip
             proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=a.timeout)

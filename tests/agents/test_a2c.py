@@ -4,7 +4,6 @@ devices do not change the result; learning on a toy reaching task."""
 
 import dataclasses
 import math
-import os
 import subprocess
 import sys
 import textwrap
@@ -35,9 +34,7 @@ from jaxrl_robot.agents.a2c import (
 )
 from jaxrl_robot.evaluation import run_test_episodes
 from jaxrl_robot.networks import gaussian_entropy
-from tests.subproc import cpu_env
-
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from tests.subproc import ROOT, cpu_env
 
 
 def f32(x):

@@ -8,11 +8,10 @@ import sys
 
 from jaxrl_robot.checkpoint import Checkpointer
 from jaxrl_robot.logging import read_csv
-from tests.subproc import cpu_env
+from tests.subproc import ROOT, cpu_env
 from train import a2c as a2c_cli
 from train import a3c as a3c_cli
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 TINY = ["--num-envs", "4", "--unroll-length", "8", "--actor-hidden", "16", "--critic-hidden", "16"]
 
 

@@ -11,10 +11,9 @@ import jax
 import numpy as np
 
 from jaxrl_robot.checkpoint import Checkpointer
-from tests.subproc import cpu_env
+from tests.subproc import ROOT, cpu_env
 from train import ddpg as ddpg_cli
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 TINY = ["--batch-size", "16", "--actor-hidden", "16", "--critic-hidden", "16"]
 
 

@@ -13,11 +13,10 @@ import pytest
 
 from jaxrl_robot.checkpoint import Checkpointer
 from jaxrl_robot.types import Trainer
-from tests.subproc import cpu_env
+from tests.subproc import ROOT, cpu_env
 from train import common
 from train import ppo as ppo_cli
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 TINY = [
     "--num-envs", "4", "--unroll-length", "8", "--minibatch-size", "16", "--actor-updates", "2",
     "--critic-updates", "2", "--actor-hidden", "16", "--critic-hidden", "16",
