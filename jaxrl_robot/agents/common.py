@@ -4,7 +4,8 @@
   Gaussian actor and critic, Adam, γ, episode length) with their validation; an algorithm's
   config subclasses it, adds its own fields and extends ``validate``.
 * :func:`make_actor_critic` — the Gaussian actor (σ broadcast to the action size) and critic.
-* :func:`make_optimizer`, :func:`apply_gradients` — Adam (clipped, optionally annealed) and one step.
+* :func:`make_optimizer`, :func:`apply_gradients` — Adam (clipped, optionally annealed) and one step
+  (every algorithm's optimiser, DDPG's included).
 * :func:`setup` → :class:`Setup` — the shell of ``make_trainer``: the config validated, lanes per
   device, the env wrapped for training, iteration and chunk counts, the initial env states
   (:meth:`Setup.reset`) and the :class:`~jaxrl_robot.types.Trainer` (:meth:`Setup.trainer`).
@@ -185,12 +186,14 @@ def make_actor_critic(
 
 
 def make_optimizer(
-    lr: float, max_grad_norm: float, schedule: str = "constant", total_updates: int = 1
+    lr: float, max_grad_norm: float, end_factor: float = 1.0, decay_steps: int = 1
 ) -> optax.GradientTransformation:
-    """Adam at ``lr`` (``schedule='linear'``: annealed to 0 over ``total_updates`` steps), after
-    clipping to the global norm ``max_grad_norm`` when it is positive."""
-    rate = optax.linear_schedule(lr, 0.0, total_updates) if schedule == "linear" else lr
-    adam = optax.adam(rate)
+    """Adam with step size ``lr`` falling linearly to ``end_factor · lr`` over ``decay_steps`` of its own
+    steps and then held (constant when ``end_factor`` is 1), after clipping the gradient to the
+    global norm ``max_grad_norm`` when it is positive."""
+    if end_factor < 1.0:
+        lr = optax.linear_schedule(lr, lr * end_factor, max(int(decay_steps), 1))
+    adam = optax.adam(lr)
     return optax.chain(optax.clip_by_global_norm(max_grad_norm), adam) if max_grad_norm > 0 else adam
 
 

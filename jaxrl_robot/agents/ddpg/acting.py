@@ -35,13 +35,14 @@ from brax.envs.base import Env, State
 
 from envs_mjx.base import EpisodeWrapper, wrap_for_training
 from jaxrl_robot import parallel
+from jaxrl_robot.acting import per_lane_keys
 from jaxrl_robot.agents.ddpg.config import DDPGConfig
 from jaxrl_robot.networks import normalize
 from jaxrl_robot.noise import Noise, NoiseState, make_noise
 from jaxrl_robot.replay import GoalEpisode, Her, Transition
 from jaxrl_robot.types import RunningStats
 
-__all__ = ["Acting", "Collected", "LanePolicy", "make_acting", "make_noise_for", "per_lane_keys", "tree_where"]
+__all__ = ["Acting", "Collected", "LanePolicy", "make_acting", "make_noise_for", "tree_where"]
 
 LanePolicy = Callable[[jax.Array, jax.Array, NoiseState], tuple[jax.Array, NoiseState]]
 """``(key, obs [b, O], noise [b, A]) -> (action [b, A], noise)`` for one device's lanes."""
@@ -106,11 +107,6 @@ def make_noise_for(config: DDPGConfig, action_size: int) -> Noise:
 def tree_where(cond: jax.Array, a: Any, b: Any) -> Any:
     """Per-lane select ``cond [n] ? a : b`` over pytrees with a leading axis ``[n]``."""
     return jax.tree.map(lambda x, y: jnp.where(cond.reshape(cond.shape + (1,) * (x.ndim - 1)), x, y), a, b)
-
-
-def per_lane_keys(key: jax.Array, lane_ids: jax.Array) -> jax.Array:
-    """One key per lane from its global index: ``lane_ids [b] -> keys [b]`` (independent of the device count)."""
-    return jax.vmap(jax.random.fold_in, in_axes=(None, 0))(key, lane_ids)
 
 
 def _lane_major(tree: Any) -> Any:

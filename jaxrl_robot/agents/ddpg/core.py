@@ -21,6 +21,7 @@ from flax import struct
 
 from envs_mjx.config import ConfigError
 from jaxrl_robot import parallel
+from jaxrl_robot.agents.common import cast_like
 from jaxrl_robot.agents.ddpg.acting import Acting, make_acting, make_noise_for
 from jaxrl_robot.agents.ddpg.config import DDPGConfig
 from jaxrl_robot.agents.ddpg.learner import Learner, make_learner, make_networks, make_optimizer
@@ -38,7 +39,6 @@ __all__ = [
     "episode_means",
     "greedy_policy",
     "init_state",
-    "like",
     "noise_factor",
     "run_chunk",
     "setup",
@@ -248,19 +248,6 @@ def store(
     return state.replace(replay=buf, obs_stats=stats)
 
 
-def like(new: Any, old: Any) -> Any:
-    """``new`` with the dtypes (and strong typing) of ``old``, so ``update``'s output state has
-    exactly its input's types and the jitted ``update`` never recompiles (env steps may return
-    weakly typed values where ``reset`` returned strong ones)."""
-
-    def cast(x, y):
-        if x.dtype != y.dtype or getattr(x, "weak_type", False) != getattr(y, "weak_type", False):
-            return jnp.asarray(x).astype(y.dtype)
-        return x
-
-    return jax.tree.map(cast, new, old)
-
-
 def episode_means(sums: dict[str, jax.Array], prefix: str = "") -> Metrics:
     """Every device's episode ``sums`` (psum) -> ``episodes`` and per-episode means (NaN without episodes)."""
     sums = dict(parallel.psum(sums))
@@ -281,7 +268,7 @@ def run_chunk(s: Setup, state: DDPGState, iteration: Callable[[DDPGState], tuple
     """
     start = state
     state, (sums, count, ep, extra) = jax.lax.scan(lambda st, _: iteration(st), state, None, length=s.chunk)
-    state = like(state, start)
+    state = cast_like(state, start)  # update returns its input's dtypes: no recompilation
     n = jnp.sum(count)
     out: dict[str, jax.Array] = {k: jnp.sum(v) / jnp.maximum(n, 1.0) for k, v in sums.items()}
     out.update(episode_means(jax.tree.map(jnp.sum, ep)))

@@ -33,7 +33,8 @@ import jax.numpy as jnp
 import optax
 
 from jaxrl_robot import parallel
-from jaxrl_robot.agents.ddpg.acting import per_lane_keys
+from jaxrl_robot.acting import per_lane_keys
+from jaxrl_robot.agents.common import make_optimizer
 from jaxrl_robot.agents.ddpg.config import DDPGConfig
 from jaxrl_robot.agents.ddpg.losses import (
     actor_loss,
@@ -119,18 +120,6 @@ def make_networks(config: DDPGConfig, action_size: int) -> tuple[DDPGActor, DDPG
         DDPGActor(action_size=action_size, hidden=tuple(config.actor_hidden), output=config.actor_output),
         DDPGCritic(hidden=tuple(config.critic_hidden)),
     )
-
-
-def make_optimizer(
-    lr: float, max_grad_norm: float, end_factor: float = 1.0, decay_steps: int = 1
-) -> optax.GradientTransformation:
-    """Adam with step size ``lr`` falling linearly to ``end_factor · lr`` over ``decay_steps`` of its own
-    steps and then held (``lr_end_factor``; constant when ``end_factor`` is 1), after clipping the
-    gradient to ``max_grad_norm`` (when > 0)."""
-    if end_factor < 1.0:
-        lr = optax.linear_schedule(lr, lr * end_factor, max(int(decay_steps), 1))
-    adam = optax.adam(lr)
-    return optax.chain(optax.clip_by_global_norm(max_grad_norm), adam) if max_grad_norm > 0 else adam
 
 
 def make_learner(
