@@ -21,6 +21,15 @@ _CURVES = (
 )
 
 
+def _save(fig: Any, out_dir: str, name: str) -> str:
+    """Write ``fig`` to ``out_dir/name`` (100 dpi, tight layout), close it and return the path."""
+    path = os.path.join(out_dir, name)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
 def plot_training_curves(rows: Sequence[Mapping[str, Any]], out_dir: str) -> list[str]:
     """Episode reward, success rate and extra distance against environment steps.
 
@@ -47,11 +56,7 @@ def plot_training_curves(rows: Sequence[Mapping[str, Any]], out_dir: str) -> lis
         ax.set_ylabel(title.lower())
         ax.set_title(title)
         ax.grid(alpha=0.3)
-        path = os.path.join(out_dir, name)
-        fig.tight_layout()
-        fig.savefig(path, dpi=100)
-        plt.close(fig)
-        written.append(path)
+        written.append(_save(fig, out_dir, name))
     return written
 
 
@@ -73,10 +78,7 @@ def plot_tracking(
     ax.set_aspect("equal", adjustable="datalim")
     ax.legend()
     ax.set_title("Referenced path and real path")
-    path1 = os.path.join(out_dir, "tracking_path.png")
-    fig.tight_layout()
-    fig.savefig(path1, dpi=100)
-    plt.close(fig)
+    path1 = _save(fig, out_dir, "tracking_path.png")
     fig, ax = plt.subplots(figsize=(6, 3.5))
     for i, name in enumerate(axes):
         ax.plot(err[:, i], label=f"{name} error")
@@ -85,11 +87,7 @@ def plot_tracking(
     ax.legend()
     ax.grid(alpha=0.3)
     ax.set_title("Tracking errors")
-    path2 = os.path.join(out_dir, "tracking_errors.png")
-    fig.tight_layout()
-    fig.savefig(path2, dpi=100)
-    plt.close(fig)
-    return [path1, path2]
+    return [path1, _save(fig, out_dir, "tracking_errors.png")]
 
 
 def _column(rows: Sequence[Mapping[str, Any]], key: str) -> np.ndarray:
@@ -124,11 +122,7 @@ def plot_worker_curves(
     ax.set_title("Episode rewards of different workers")
     ax.legend(fontsize=7, ncol=2)
     ax.grid(alpha=0.3)
-    path = os.path.join(out_dir, name)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return [path]
+    return [_save(fig, out_dir, name)]
 
 
 def plot_staleness(rows: Sequence[Mapping[str, Any]], out_dir: str, name: str = "staleness.png") -> list[str]:
@@ -157,8 +151,4 @@ def plot_staleness(rows: Sequence[Mapping[str, Any]], out_dir: str, name: str = 
     ax2.set_xlabel("environment steps")
     ax2.set_ylabel("mean staleness")
     ax2.grid(alpha=0.3)
-    path = os.path.join(out_dir, name)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return [path]
+    return [_save(fig, out_dir, name)]
