@@ -49,6 +49,7 @@ import jax
 import jax.numpy as jnp
 
 import envs_mjx  # noqa: F401  (configures XLA:CPU for MJX before the first computation)
+from benchmarks.timing import compile_and_time
 from jaxrl_robot.replay import Transition, make_prioritized_replay, make_uniform_replay
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
@@ -77,16 +78,7 @@ def transitions(key: jax.Array, n: int) -> Transition:
 
 def _time(fn: Callable, state: Any, repeats: int) -> tuple[float, float, Any]:
     """(compile_s, median seconds per call, state); ``fn(state) -> state`` jitted with donation."""
-    jitted = jax.jit(fn, donate_argnums=0)
-    t0 = time.perf_counter()
-    compiled = jitted.lower(state).compile()
-    compile_s = time.perf_counter() - t0
-    state = jax.block_until_ready(compiled(state))
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        state = jax.block_until_ready(compiled(state))
-        times.append(time.perf_counter() - t)
+    compile_s, times, state = compile_and_time(lambda s: (fn(s), None), state, repeats, donate=True)
     return compile_s, statistics.median(times), state
 
 
@@ -219,15 +211,7 @@ def bench_ddpg(lanes: int, updates: int, batch: int, mode: str, repeats: int) ->
                      failure_value=-10.0)  # fmt: skip
     trainer = make_trainer(cfg, env, iterations_per_update=1)
     state = jax.block_until_ready(jax.jit(trainer.init)(jax.random.PRNGKey(0)))
-    t0 = time.perf_counter()
-    compiled = jax.jit(trainer.update, donate_argnums=0).lower(state).compile()
-    compile_s = time.perf_counter() - t0
-    state, _ = jax.block_until_ready(compiled(state))
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        state, _ = jax.block_until_ready(compiled(state))
-        times.append(time.perf_counter() - t)
+    compile_s, times, _ = compile_and_time(trainer.update, state, repeats, donate=True)
     med = statistics.median(times)
     steps = trainer.env_steps_per_update
     return {"lanes": lanes, "updates_per_cycle": updates, "batch": batch, "mode": mode, "compile_s": compile_s,

@@ -35,7 +35,14 @@ from typing import Any
 import jax
 
 import envs_mjx
-from benchmarks.train_throughput import RESULTS, bench_brax, bench_ours, device_label, write_results
+from benchmarks.train_throughput import (
+    RESULTS,
+    bench_brax,
+    bench_ours,
+    device_label,
+    markdown_head,
+    write_results,
+)
 from jaxrl_robot import parallel
 
 ENV_CONFIGS = {"arm7": {"mode": "pd"}, "unicycle": {"mode": "dynamic"}, "scara": {}}
@@ -103,12 +110,9 @@ def _brax_in_subprocess(args: argparse.Namespace, tmp: str) -> list[dict[str, An
 
 def to_markdown(result: dict[str, Any]) -> str:
     lines = [
-        f"# PPO scaling — {result['device']} x {result['gpus']}",
-        "",
-        f"jax {result['jax']}, {result['date']}; N = {result['unroll']}, {result['updates']} actor + "
-        f"{result['updates']} critic updates per iteration, {result['chunk_iters']} iterations per timed call, "
-        f"median of {result['repeats']}; reset refresh {result['reset_refresh']}.",
-        "",
+        *markdown_head(
+            f"PPO scaling — {result['device']} x {result['gpus']}", result, f"reset refresh {result['reset_refresh']}"
+        ),
         "| env | kind | impl | GPUs | lanes | lanes/GPU | env-steps/s | vs 1 GPU same lanes/GPU | compile s |",
         "|---|---|---|---:|---:|---:|---:|---:|---:|",
     ]

@@ -34,6 +34,7 @@ import numpy as np
 
 import envs_mjx
 from benchmarks.peers.brax_ppo import run_brax_ppo
+from benchmarks.timing import compile_and_time
 from jaxrl_robot.agents.ppo import PPOConfig, make_trainer
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
@@ -65,15 +66,7 @@ def bench_ours(
     )  # fmt: skip
     trainer = make_trainer(cfg, env, mesh=mesh, iterations_per_update=chunk_iters)
     state = jax.block_until_ready(jax.jit(trainer.init)(jax.random.PRNGKey(0)))
-    t0 = time.perf_counter()
-    compiled = jax.jit(trainer.update).lower(state).compile()
-    compile_s = time.perf_counter() - t0
-    state, _ = jax.block_until_ready(compiled(state))  # warm-up
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        state, metrics = jax.block_until_ready(compiled(state))
-        times.append(time.perf_counter() - t)
+    compile_s, times, _ = compile_and_time(trainer.update, state, repeats)
     med = statistics.median(times)
     return {
         "impl": "jaxrl_robot",
@@ -108,14 +101,22 @@ def write_results(stem: str, result: dict[str, Any], markdown: str) -> None:
     print(markdown)
 
 
+def markdown_head(title: str, result: dict[str, Any], *notes: str) -> list[str]:
+    """``[# title, "", settings, ""]``: the title and the run's settings (jax, date, N, updates per
+    iteration, iterations per timed call, repeats, then ``notes``) of a PPO throughput table."""
+    u, r = result["updates"], result
+    settings = (
+        f"jax {r['jax']}, {r['date']}; N = {r['unroll']} steps per lane per iteration, {u} actor + {u} critic updates "
+        f"per iteration, {r['chunk_iters']} iterations per timed call, median of {r['repeats']}"
+    )
+    return [f"# {title}", "", "; ".join([settings, *notes]) + ".", ""]
+
+
 def to_markdown(result: dict[str, Any]) -> str:
     lines = [
-        f"# PPO training throughput on arm7 ({result['env_config']['mode']}) — {result['device']}",
-        "",
-        f"jax {result['jax']}, {result['date']}; N = {result['unroll']} steps per lane per iteration, "
-        f"{result['updates']} actor + {result['updates']} critic updates per iteration, {result['chunk_iters']} "
-        f"iterations per timed call, median of {result['repeats']}.",
-        "",
+        *markdown_head(
+            f"PPO training throughput on arm7 ({result['env_config']['mode']}) — {result['device']}", result
+        ),
         "| implementation | auto-reset | lanes | env-steps/s | compile s (brax: first epoch incl. compile) |",
         "|---|---|---:|---:|---:|",
     ]
