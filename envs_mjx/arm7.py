@@ -165,6 +165,7 @@ class Arm7(RobotEnv):
 
     name = "arm7"
     Config = Arm7Config
+    action_size = 3
 
     def __init__(self, config: Arm7Config | None = None, **overrides: Any):
         super().__init__(config, **overrides)
@@ -192,10 +193,6 @@ class Arm7(RobotEnv):
     @property
     def observation_size(self) -> int:
         return 9 if self.config.obs == "goal" else 6
-
-    @property
-    def action_size(self) -> int:
-        return 3
 
     @property
     def action_scale(self) -> jax.Array:

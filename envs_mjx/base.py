@@ -75,8 +75,8 @@ class RobotEnv(Env, abc.ABC):
     """Base class of the project's environments.
 
     Subclasses define ``Config`` (a frozen dataclass with the thesis's defaults and a
-    ``validate()`` method), ``name``, ``observation_size``, ``action_size``,
-    ``action_scale`` and the pure ``reset`` / ``step``.
+    ``validate()`` method), ``name``, ``observation_size`` and ``action_size`` (class attributes,
+    or properties where the config decides them), ``action_scale`` and the pure ``reset`` / ``step``.
     """
 
     name: ClassVar[str] = "robot"

@@ -397,6 +397,8 @@ class RaceCar(RobotEnv):
 
     name = "racecar"
     Config = RaceCarConfig
+    observation_size = 60
+    action_size = 3
 
     def __init__(self, config: RaceCarConfig | None = None, **overrides: Any):
         super().__init__(config, **overrides)
@@ -430,14 +432,6 @@ class RaceCar(RobotEnv):
         return env
 
     # ----------------------------------------------------------------- sizes
-    @property
-    def observation_size(self) -> int:
-        return 60
-
-    @property
-    def action_size(self) -> int:
-        return 3
-
     @property
     def action_scale(self) -> jax.Array:
         """Ones: actions are the steering command and the pedal commands of the module docstring."""

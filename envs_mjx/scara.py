@@ -188,6 +188,8 @@ class Scara(tracking.TrackingEnv):
 
     name = "scara"
     Config = ScaraConfig
+    observation_size = 10
+    action_size = 3
     axis_names = ("x", "y", "z")
     wrap_axes = (False, False, False)
     build_model = staticmethod(build_model)
@@ -200,15 +202,6 @@ class Scara(tracking.TrackingEnv):
         self._xy_scale = cfg.l1 + cfg.l2
         self._z_mid = cfg.height - 0.5 * (cfg.joint_lo[2] + cfg.joint_hi[2])
         self._z_half = 0.5 * (cfg.joint_hi[2] - cfg.joint_lo[2])
-
-    # ----------------------------------------------------------------- sizes
-    @property
-    def observation_size(self) -> int:
-        return 10
-
-    @property
-    def action_size(self) -> int:
-        return 3
 
     # ------------------------------------------------------------- reference
     def joint_reference(self, k: jax.Array) -> JointReference:

@@ -242,6 +242,7 @@ class Unicycle(tracking.TrackingEnv):
 
     name = "unicycle"
     Config = UnicycleConfig
+    action_size = 2
     axis_names = ("x", "y", "theta")
     wrap_axes = (False, False, True)
     build_model = staticmethod(build_model)
@@ -260,10 +261,6 @@ class Unicycle(tracking.TrackingEnv):
     @property
     def observation_size(self) -> int:
         return 19 if self.config.observation == "extended" else 14
-
-    @property
-    def action_size(self) -> int:
-        return 2
 
     # ------------------------------------------------------------- reference
     def reference(self, k: jax.Array) -> PlanarReference:

@@ -31,14 +31,8 @@ class Toy(RobotEnv):
 
     name = "toy"
     Config = ToyConfig
-
-    @property
-    def observation_size(self):
-        return 1
-
-    @property
-    def action_size(self):
-        return 1
+    observation_size = 1
+    action_size = 1
 
     @property
     def action_scale(self):

@@ -33,14 +33,8 @@ class ToyGoalConfig:
 class ToyGoalEnv(RobotEnv):
     name = "toy_goal"
     Config = ToyGoalConfig
-
-    @property
-    def observation_size(self):
-        return 9
-
-    @property
-    def action_size(self):
-        return 3
+    observation_size = 9
+    action_size = 3
 
     @property
     def action_scale(self):
