@@ -13,6 +13,7 @@ from mujoco import mjx
 import envs_mjx
 from envs_mjx.config import ConfigError
 from envs_mjx.scara import Scara, build_model, forward_kinematics, scara_reward
+from tests.envs import tracking_checks as checks
 
 
 def _eq_3_15(q, l1, l2, d):
@@ -25,31 +26,11 @@ def scara():
     """The default env and a jit(vmap) scan feeding ``actions [B, T, 3]`` (NaN rows: reference increments)."""
     env = Scara()
 
-    def one(key, params, actions):
-        state = env.reset(key, params)
+    def record(s):
+        return {"reward": s.reward, "done": s.done, "q": s.info["q"], "ee": s.info["ee_pos"],
+                "ref": s.info["ref_pos"], "k": s.info["k"], "obs": s.obs, **s.metrics}  # fmt: skip
 
-        def body(s, a):
-            a = jnp.where(jnp.isnan(a), env.reference_action(s.info["k"]), a)
-            s = env.step(s, a)
-            rec = {"reward": s.reward, "done": s.done, "q": s.info["q"], "ee": s.info["ee_pos"],
-                   "ref": s.info["ref_pos"], "k": s.info["k"], "obs": s.obs, **s.metrics}
-            return s, rec
-
-        return state, jax.lax.scan(body, state, actions)[1]
-
-    run = jax.jit(jax.vmap(one, in_axes=(0, None, 0)))
-
-    def padded(params, actions):
-        """Always one lane and ``max_steps`` steps, so the scan compiles once."""
-        actions = jnp.asarray(actions, jnp.float32)
-        pad = jnp.zeros((1, env.max_steps - actions.shape[1], 3))
-        return run(jax.random.PRNGKey(0)[None], params, jnp.concatenate([actions, pad], axis=1))
-
-    return env, padded
-
-
-def _start(frac, limit=math.inf):
-    return {"start_lo": frac, "start_hi": frac, "et_limit": limit}
+    return env, checks.rollout_fn(env, jax.random.PRNGKey(0)[None], record)
 
 
 def _mjx_sites(env, site, qs):
@@ -83,7 +64,7 @@ def test_site_matches_eq_3_15_in_mjx_and_c_engine():
 def test_mjx_servo_step_matches_c_engine(scara):
     """One control step (n_substeps of implicitfast with position servos) agrees with MuJoCo C."""
     env, run = scara
-    state, rec = run(_start(0.3), jnp.array([[[0.7, -0.4, 0.9]]]))
+    state, rec = run(checks.start(0.3), jnp.array([[[0.7, -0.4, 0.9]]]))
     k0 = int(0.3 * env.max_steps)
     r = env.joint_reference(k0)
     mj, d = env.mj_model, mujoco.MjData(env.mj_model)
@@ -99,7 +80,7 @@ def test_reward_eq_3_22_hand_computed(scara):
     np.testing.assert_allclose(scara_reward(jnp.array([0.1, -0.2, 0.3])), math.exp(-2 * 0.14), rtol=1e-6)
     np.testing.assert_allclose(scara_reward(jnp.zeros(3)), 1.0)
     env, run = scara
-    _, rec = run(_start(0.5), jnp.array([[[1.0, -1.0, 1.0], [1.0, 0.5, -1.0]]]))
+    _, rec = run(checks.start(0.5), jnp.array([[[1.0, -1.0, 1.0], [1.0, 0.5, -1.0]]]))
     for i in range(2):
         e = np.asarray(rec["ref"][0, i], np.float64) - np.asarray(rec["ee"][0, i])
         assert np.linalg.norm(e) > 0.05  # a real error, not a trivially perfect step
@@ -116,17 +97,10 @@ def test_reward_eq_3_22_hand_computed(scara):
 
 def test_rsi_starts_exactly_on_reference_state(scara):
     env, _ = scara
-    reset = jax.jit(env.reset)
-    for frac in (0.0, 0.42, 0.999):
-        state = reset(jax.random.PRNGKey(5), _start(frac))
-        k0 = int(math.floor(frac * env.max_steps))
-        r = env.joint_reference(k0)
-        assert int(state.info["k"]) == k0
-        np.testing.assert_allclose(state.info["t"], k0 * env.dt, rtol=1e-6)
-        np.testing.assert_allclose(state.pipeline_state.qpos, r.q, atol=1e-7)
-        np.testing.assert_allclose(state.pipeline_state.qvel, r.qd, atol=1e-7)
+    joints = lambda k: (env.joint_reference(k).q, env.joint_reference(k).qd)
+    for state in checks.rsi_starts(env, jax.random.PRNGKey(5), (0.0, 0.42, 0.999), joints, atol=1e-7):
         np.testing.assert_allclose(state.info["ee_pos"], state.info["ref_pos"], atol=1e-7)
-        np.testing.assert_allclose(state.obs[7:], 0.0, atol=1e-6)
+    reset = jax.jit(env.reset)
     ks = jax.vmap(lambda k: reset(k, {"start_lo": 0.25, "start_hi": 0.5}).info["k"])(
         jax.random.split(jax.random.PRNGKey(0), 64)
     )
@@ -135,20 +109,14 @@ def test_rsi_starts_exactly_on_reference_state(scara):
 
 def test_early_termination_after_limit_plus_one_and_zero_reward_after(scara):
     env, run = scara
-    _, rec = run(_start(0.0, limit=5.0), jnp.ones((1, 30, 3)))  # run away from the reference
-    over = np.asarray(rec["pos_error"][0, :30]) > env.config.et_threshold
-    done = np.asarray(rec["done"][0, :30])
-    first = int(np.argmax(done > 0))
-    assert over[first] and np.cumsum(over)[first] == 6  # exactly limit + 1 over-threshold steps
-    assert not done[:first].any() and done[first:].all()
-    assert np.all(np.asarray(rec["reward"][0, :first]) > 0)
-    np.testing.assert_array_equal(rec["reward"][0, first:30], 0.0)
+    _, rec = run(checks.start(0.0, limit=5.0), jnp.ones((1, 30, 3)))  # run away from the reference
+    first = checks.assert_early_termination(env, rec, 30, limit=5)
     assert float(rec["reward_tracking"][0, first]) > 0  # the tracking term itself is not zero
 
 
 def test_reference_increments_track_the_reference(scara):
     env, run = scara
-    _, rec = run(_start(0.0, limit=0.0), jnp.full((1, env.max_steps, 3), jnp.nan))
+    _, rec = run(checks.start(0.0, limit=0.0), jnp.full((1, env.max_steps, 3), jnp.nan))
     assert float(jnp.max(rec["pos_error"])) < 5e-3
     assert int(jnp.argmax(rec["done"][0])) == env.max_steps - 1  # ends with the reference, no ET
     assert float(rec["reward"][0].min()) > 0.9999
@@ -172,23 +140,11 @@ def test_config_errors_and_registry():
 def test_jit_vmap_1024_lanes_no_nan_no_recompile(scara):
     env, _ = scara
     wrapped = envs_mjx.wrap_for_training(env, num_envs=1024)
-    traces = []
+    jstep, traces = checks.counting_step(wrapped)
 
-    def step(state, action):
-        traces.append(1)
-        return wrapped.step(state, action)
-
-    jstep = jax.jit(step)
-    state = jax.jit(wrapped.reset)(jax.random.PRNGKey(0))
-    lanes = jnp.arange(1024)[:, None]
-    extreme = jnp.where(lanes % 2 == 0, 1e6, -jnp.inf) * jnp.ones((1024, 3), jnp.float32)
-    nan = jnp.full((1024, 3), jnp.nan, jnp.float32).at[::3, 1].set(0.5)
-    rand = jax.random.uniform(jax.random.PRNGKey(1), (1024, 3), minval=-1, maxval=1)
-    for actions in (rand, extreme, nan, extreme):
-        state = jstep(state, actions)
-        for x in (state.obs, state.reward, state.pipeline_state.qpos, state.pipeline_state.qvel):
-            assert bool(jnp.all(jnp.isfinite(x)))
+    def joints_in_range(state):
         q = state.info["q"]
         assert bool(jnp.all((q >= env._lo - 0.02) & (q <= env._hi + 0.02)))
-    np.testing.assert_array_equal(state.metrics["invalid_action"], np.where(np.arange(1024) % 2 == 0, 0.0, 1.0))
+
+    checks.step_extreme_actions(jstep, jax.jit(wrapped.reset)(jax.random.PRNGKey(0)), 3, 1, joints_in_range)
     assert len(traces) == 1

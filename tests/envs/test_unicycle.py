@@ -16,43 +16,25 @@ import envs_mjx
 from envs_mjx import tracking
 from envs_mjx.config import ConfigError
 from envs_mjx.unicycle import Unicycle, unicycle_reward, wheel_speeds, wheel_torques
+from tests.envs import tracking_checks as checks
+
+
+def _record(s):
+    return {
+        "reward": s.reward,
+        "done": s.done,
+        "pose": s.info["pose"],
+        "vel": s.info["vel"],
+        "k": s.info["k"],
+        "tau": s.info["wheel_torque"],
+        "wheel_speed": s.info["wheel_speed"],
+        **s.metrics,
+    }
 
 
 def _rollout_fn(env, lanes):
-    """``run(params, actions [lanes, max_steps, 2])`` -> (start state, per-step records [lanes, T]).
-
-    Shorter action sequences are padded with zeros; NaN rows mean the reference's own command.
-    """
-
-    def one(key, params, actions):
-        state = env.reset(key, params)
-
-        def body(s, a):
-            a = jnp.where(jnp.isnan(a), env.reference_action(s.info["k"]), a)
-            s = env.step(s, a)
-            rec = {
-                "reward": s.reward,
-                "done": s.done,
-                "pose": s.info["pose"],
-                "vel": s.info["vel"],
-                "k": s.info["k"],
-                "tau": s.info["wheel_torque"],
-                "wheel_speed": s.info["wheel_speed"],
-                **s.metrics,
-            }
-            return s, rec
-
-        return state, jax.lax.scan(body, state, actions)[1]
-
-    run = jax.jit(jax.vmap(one, in_axes=(0, None, 0)))
-    keys = jax.random.split(jax.random.PRNGKey(0), lanes)
-
-    def padded(params, actions):
-        actions = jnp.asarray(actions, jnp.float32)
-        pad = jnp.zeros((lanes, env.max_steps - actions.shape[1], 2), jnp.float32)
-        return run(keys, params, jnp.concatenate([actions, pad], axis=1))
-
-    return padded
+    """``run(params, actions [lanes, T, 2])`` -> (start state, per-step records ``[lanes, max_steps]``)."""
+    return checks.rollout_fn(env, jax.random.split(jax.random.PRNGKey(0), lanes), _record)
 
 
 @pytest.fixture(scope="module")
@@ -66,10 +48,6 @@ def dyn_ellipse():
     """Dynamic ellipse over 20 s (past the 2π → 0 jump of θ_r at 16 s), 8 lanes."""
     env = Unicycle(mode="dynamic", trajectory="ellipse", duration=20.0)
     return env, _rollout_fn(env, 8)
-
-
-def _start(frac, limit=math.inf):
-    return {"start_lo": frac, "start_hi": frac, "et_limit": limit}
 
 
 def test_registry_and_config_errors():
@@ -96,10 +74,10 @@ def test_extended_observation_hand_computed():
     env = Unicycle(mode="kinematic", trajectory="sine", observation="extended")
     thesis = Unicycle(mode="kinematic", trajectory="sine")
     assert (env.observation_size, thesis.observation_size) == (19, 14)
-    state = jax.jit(env.reset)(jax.random.PRNGKey(0), _start(0.0))
+    state = jax.jit(env.reset)(jax.random.PRNGKey(0), checks.start(0.0))
     obs = np.asarray(state.obs)
     assert obs.shape == (19,)
-    np.testing.assert_allclose(obs[:14], jax.jit(thesis.reset)(jax.random.PRNGKey(0), _start(0.0)).obs, atol=1e-6)
+    np.testing.assert_allclose(obs[:14], jax.jit(thesis.reset)(jax.random.PRNGKey(0), checks.start(0.0)).obs, atol=1e-6)
     th0 = math.atan(0.4)  # Eq. 3.25 at t = 0; the robot starts there
     x1, y1, th1 = 0.1, 2 * math.sin(0.02), math.atan(0.4 * math.cos(0.02))  # reference at t = dt
     d_par = math.cos(th0) * x1 + math.sin(th0) * y1
@@ -130,7 +108,7 @@ def test_kinematic_constant_command_gives_closed_form_circle(kin_sine):
     env, run = kin_sine
     v, w, dt, n = 0.6, 0.3, env.dt, env.max_steps
     a = jnp.broadcast_to(jnp.array([v / 1.5, w / 0.5]), (1, n, 2))
-    _, rec = run(_start(0.0), a)  # the sine starts at (0, 0) with heading arctan(0.4)
+    _, rec = run(checks.start(0.0), a)  # the sine starts at (0, 0) with heading arctan(0.4)
     pose = np.asarray(rec["pose"][0], np.float64)
     th0, k, phi = math.atan(0.4), np.arange(1, n + 1), w * dt
     chord = v * dt * np.sin(k * phi / 2) / np.sin(phi / 2)
@@ -155,7 +133,7 @@ def test_reward_eq_3_23_hand_computed():
 
 def test_step_reward_and_observation_match_eq_3_23(kin_sine):
     env, run = kin_sine
-    _, rec = run(_start(0.25), jnp.array([[[0.3, -0.4], [0.9, 0.2]]]))
+    _, rec = run(checks.start(0.25), jnp.array([[[0.3, -0.4], [0.9, 0.2]]]))
     k0 = int(0.25 * env.max_steps)
     for i in range(2):
         ref = env.reference(k0 + 1 + i)
@@ -173,35 +151,20 @@ def test_step_reward_and_observation_match_eq_3_23(kin_sine):
 
 def test_rsi_starts_exactly_on_reference_state(kin_sine, dyn_ellipse):
     for env in (kin_sine[0], dyn_ellipse[0]):
-        reset = jax.jit(env.reset)
-        for frac in (0.0, 0.37, 0.99):
-            state = reset(jax.random.PRNGKey(3), _start(frac))
-            k0 = int(math.floor(frac * env.max_steps))
-            ref = env.reference(k0)
-            assert int(state.info["k"]) == k0
-            np.testing.assert_allclose(state.info["t"], k0 * env.dt, rtol=1e-6)
-            np.testing.assert_allclose(state.pipeline_state.qpos, ref.pos, atol=1e-6)
-            np.testing.assert_allclose(state.pipeline_state.qvel, ref.vel, atol=1e-6)
-            np.testing.assert_allclose(state.info["pose"], ref.pos, atol=1e-6)
-            np.testing.assert_allclose(state.obs[7:], 0.0, atol=1e-6)  # every error is zero
+        pose_and_rate = lambda k, env=env: (env.reference(k).pos, env.reference(k).vel)
+        for state in checks.rsi_starts(env, jax.random.PRNGKey(3), (0.0, 0.37, 0.99), pose_and_rate, atol=1e-6):
+            np.testing.assert_allclose(state.info["pose"], env.reference(state.info["k"]).pos, atol=1e-6)
 
 
 def test_early_termination_after_limit_plus_one_and_zero_reward_after(kin_sine):
     env, run = kin_sine
-    n = 30
-    _, rec = run(_start(0.0, limit=3.0), jnp.broadcast_to(jnp.array([-1.0, 1.0]), (1, n, 2)))  # drive away
-    over = np.asarray(rec["pos_error"][0, :n]) > env.config.et_threshold
-    done = np.asarray(rec["done"][0, :n])
-    first = int(np.argmax(done > 0))
-    assert np.cumsum(over)[first] == 4 and over[first]  # exactly limit + 1 over-threshold steps
-    assert not done[:first].any() and done[first:].all()
-    assert np.all(np.asarray(rec["reward"][0, :first]) > 0)
-    np.testing.assert_array_equal(rec["reward"][0, first:n], 0.0)  # zero reward from then on
+    _, rec = run(checks.start(0.0, limit=3.0), jnp.broadcast_to(jnp.array([-1.0, 1.0]), (1, 30, 2)))  # drive away
+    checks.assert_early_termination(env, rec, 30, limit=3)
 
 
 def test_kinematic_reference_commands_track_the_reference(kin_sine):
     env, run = kin_sine
-    _, rec = run(_start(0.0, limit=0.0), jnp.full((1, env.max_steps, 2), jnp.nan))
+    _, rec = run(checks.start(0.0, limit=0.0), jnp.full((1, env.max_steps, 2), jnp.nan))
     assert float(jnp.max(rec["pos_error"])) < 0.05
     assert float(jnp.max(rec["err_theta"])) < 0.01
     assert int(jnp.argmax(rec["done"][0])) == env.max_steps - 1  # ends with the reference, no ET
@@ -214,7 +177,7 @@ def test_dynamic_solvable_across_heading_wrap_and_lateral_slip_bounded(dyn_ellip
     env, run = dyn_ellipse
     n = env.max_steps
     rand = jax.random.uniform(jax.random.PRNGKey(1), (7, n, 2), minval=-1.0, maxval=1.0)
-    _, rec = run(_start(0.0, limit=0.0), jnp.concatenate([jnp.full((1, n, 2), jnp.nan), rand]))
+    _, rec = run(checks.start(0.0, limit=0.0), jnp.concatenate([jnp.full((1, n, 2), jnp.nan), rand]))
     th_ref = np.asarray(jax.vmap(lambda k: env.reference(k).pos[2])(rec["k"][0]))
     assert th_ref[158] > 6.1 and th_ref[161] < 0.3  # t = 15.9 s and 16.2 s: the reference heading wrapped
     assert float(jnp.max(rec["pos_error"][0])) < 0.07
@@ -264,13 +227,7 @@ def wrapped_1024():
     def get(mode, env):
         if mode not in cache:
             wrapped = envs_mjx.wrap_for_training(env, num_envs=1024)
-            traces = []
-
-            def step(state, action):
-                traces.append(1)
-                return wrapped.step(state, action)
-
-            cache[mode] = (wrapped, jax.jit(step), traces)
+            cache[mode] = (wrapped, *checks.counting_step(wrapped))
         return cache[mode]
 
     return get
@@ -280,16 +237,7 @@ def wrapped_1024():
 def test_jit_vmap_1024_lanes_no_nan_no_recompile(mode, kin_sine, dyn_ellipse, wrapped_1024):
     env = kin_sine[0] if mode == "kinematic" else dyn_ellipse[0]
     wrapped, jstep, traces = wrapped_1024(mode, env)
-    state = jax.jit(wrapped.reset)(jax.random.PRNGKey(0))
-    lanes = jnp.arange(1024)[:, None]
-    extreme = jnp.where(lanes % 2 == 0, 1e6, -jnp.inf) * jnp.ones((1024, 2), jnp.float32)
-    nan = jnp.full((1024, 2), jnp.nan, jnp.float32).at[::3, 0].set(0.5)
-    rand = jax.random.uniform(jax.random.PRNGKey(1), (1024, 2), minval=-1, maxval=1)
-    for actions in (rand, extreme, nan, extreme):
-        state = jstep(state, actions)
-        for x in (state.obs, state.reward, state.pipeline_state.qpos, state.pipeline_state.qvel):
-            assert bool(jnp.all(jnp.isfinite(x)))
-    np.testing.assert_array_equal(state.metrics["invalid_action"], np.where(np.arange(1024) % 2 == 0, 0.0, 1.0))
+    checks.step_extreme_actions(jstep, jax.jit(wrapped.reset)(jax.random.PRNGKey(0)), 2, 0)
     assert len(traces) == 1
 
 
