@@ -8,53 +8,44 @@ import pytest
 from jaxrl_robot.returns import gae, lambda_returns, n_step_returns, td_errors
 
 
+def segment_len(term, trunc, t):
+    """Steps from ``t`` up to and including the first termination or truncation, or to the stream end."""
+    for k in range(t, len(term)):
+        if term[k] or trunc[k]:
+            return k - t + 1
+    return len(term) - t
+
+
 def loop_gae(r, v, nv, term, trunc, gamma, lam):
     """Eq. 5.12 written out: A_t = Σ_k (γλ)^k δ_{t+k} up to the episode or stream end."""
-    T = len(r)
-    delta = [r[t] + gamma * (1 - term[t]) * nv[t] - v[t] for t in range(T)]
-    adv = []
-    for t in range(T):
-        total, coef = 0.0, 1.0
-        for k in range(t, T):
-            total += coef * delta[k]
-            if term[k] or trunc[k]:
-                break
-            coef *= gamma * lam
-        adv.append(total)
-    return np.array(adv)
+    delta = [r[t] + gamma * (1 - term[t]) * nv[t] - v[t] for t in range(len(r))]
+
+    def at(t):
+        return sum((gamma * lam) ** i * delta[t + i] for i in range(segment_len(term, trunc, t)))
+
+    return np.array([at(t) for t in range(len(r))])
 
 
 def loop_nstep(r, nv, term, trunc, gamma, n):
     """R_t^{(k)} = Σ_{i<k} γ^i r_{t+i} + γ^k V(s'_{t+k-1}), k ≤ n, stopping at episode/stream end."""
-    T = len(r)
-    out = []
-    for t in range(T):
-        total, disc = 0.0, 1.0
-        for k in range(t, min(T, t + n)):
-            total += disc * r[k]
-            disc *= gamma
-            last = term[k] or trunc[k] or k == min(T, t + n) - 1
-            if last:
-                total += 0.0 if term[k] else disc * nv[k]
-                break
-        out.append(total)
-    return np.array(out)
+
+    def at(t):
+        k = min(n, segment_len(term, trunc, t))
+        last = t + k - 1
+        return sum(gamma**i * r[t + i] for i in range(k)) + (0.0 if term[last] else gamma**k * nv[last])
+
+    return np.array([at(t) for t in range(len(r))])
 
 
 def loop_lambda_returns(r, nv, term, trunc, gamma, lam):
     """(1-λ) Σ_{n=1}^{L-1} λ^{n-1} R^{(n)} + λ^{L-1} R^{(L)} with L the steps left in the episode segment."""
-    T = len(r)
-    out = []
-    for t in range(T):
-        L = 0
-        for k in range(t, T):
-            L += 1
-            if term[k] or trunc[k]:
-                break
+
+    def at(t):
+        L = segment_len(term, trunc, t)
         rets = [loop_nstep(r[t:], nv[t:], term[t:], trunc[t:], gamma, n)[0] for n in range(1, L + 1)]
-        val = sum((1 - lam) * lam ** (n - 1) * rets[n - 1] for n in range(1, L)) + lam ** (L - 1) * rets[L - 1]
-        out.append(val)
-    return np.array(out)
+        return sum((1 - lam) * lam ** (n - 1) * rets[n - 1] for n in range(1, L)) + lam ** (L - 1) * rets[L - 1]
+
+    return np.array([at(t) for t in range(len(r))])
 
 
 def f32(x):
