@@ -16,11 +16,7 @@ import sys
 import textwrap
 import time
 
-import jax
-import numpy as np
-
-from jaxrl_robot.checkpoint import Checkpointer
-from tests.cli.test_ppo_cli import TINY
+from tests.cli.test_ppo_cli import TINY, assert_same_learnt_state, final_checkpoint
 from tests.subproc import ROOT, cpu_env
 
 ARGS = ["--env", "brax:fast", "--episode-length", "16", "--total-steps", "256", "--chunks", "2",
@@ -107,13 +103,6 @@ def _wait_all(procs: dict[str, subprocess.Popen]) -> dict[str, str]:
     return outputs
 
 
-def _final_state(run_dir: str, target=None):
-    ckpt = Checkpointer(os.path.join(run_dir, "checkpoints"))
-    state, record = ckpt.restore(ckpt.latest_step(), target)
-    ckpt.close()
-    return state, record
-
-
 def test_two_processes_train_like_one_and_only_process_0_writes(tmp_path):
     multi, single, cache = tmp_path / "multi", tmp_path / "single", str(tmp_path / "jax_cache")
     procs = _start_pair([*ARGS, "--out", str(multi), "--stop-after-steps", "128"], str(tmp_path / "first"), cache)
@@ -147,13 +136,8 @@ def test_two_processes_train_like_one_and_only_process_0_writes(tmp_path):
     assert len(rows) == 3  # header + 2 chunks, none repeated after the resume
 
     # the same lanes trained by 2 processes x 2 devices (with a restart) and by 1 process x 1 device
-    reference, record = _final_state(single_dir)
-    state, record_multi = _final_state(run_dir, target=reference)
+    reference, record = final_checkpoint(single_dir)
+    state, record_multi = final_checkpoint(run_dir, target=reference)
     assert record["chunk"] == record_multi["chunk"] == 2
-    keys = ("actor_params", "critic_params", "actor_opt", "critic_opt", "obs_stats", "key", "iteration")
-    leaves = jax.tree.leaves({k: state[k] for k in keys})
-    ref_leaves = jax.tree.leaves({k: reference[k] for k in keys})
-    assert len(leaves) == len(ref_leaves) > 10
-    for x, y in zip(leaves, ref_leaves, strict=True):
-        np.testing.assert_allclose(np.asarray(x), np.asarray(y), atol=1e-5)
+    assert_same_learnt_state(state, reference, atol=1e-5)
     assert json.load(open(os.path.join(run_dir, "eval.json")))["episodes"] == 2

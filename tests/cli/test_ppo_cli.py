@@ -63,9 +63,26 @@ print("OK")
 """
 
 
-def _final_checkpoint(run_dir):
+def final_checkpoint(run_dir, target=None):
+    """``(state, record)`` of the run's latest checkpoint, restored into ``target``'s structure if given."""
     ckpt = Checkpointer(os.path.join(run_dir, "checkpoints"))
-    return ckpt.restore(ckpt.latest_step())
+    state, record = ckpt.restore(ckpt.latest_step(), target)
+    ckpt.close()
+    return state, record
+
+
+def assert_same_learnt_state(state, reference, atol=None):
+    """Networks, optimisers, observation statistics, key and iteration of two PPO training states
+    agree: to the bit, or within ``atol``."""
+    keys = ("actor_params", "critic_params", "actor_opt", "critic_opt", "obs_stats", "key", "iteration")
+    leaves = jax.tree.leaves({k: state[k] for k in keys})
+    ref_leaves = jax.tree.leaves({k: reference[k] for k in keys})
+    assert len(leaves) == len(ref_leaves) > 10
+    for x, y in zip(leaves, ref_leaves, strict=True):
+        if atol is None:
+            np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+        else:
+            np.testing.assert_allclose(np.asarray(x), np.asarray(y), atol=atol)
 
 
 def test_resume_equals_uninterrupted(tmp_path):
@@ -81,15 +98,10 @@ def test_resume_equals_uninterrupted(tmp_path):
     assert "resumed at chunk 2 (128 env steps)" in proc.stdout
     (run_a,) = glob.glob(str(tmp_path / "a" / "*"))
     (run_b,) = glob.glob(str(tmp_path / "b" / "*"))
-    sa, ra = _final_checkpoint(run_a)
-    sb, rb = _final_checkpoint(run_b)
+    sa, ra = final_checkpoint(run_a)
+    sb, rb = final_checkpoint(run_b)
     assert ra["chunk"] == rb["chunk"] == 4
-    keys = ("actor_params", "critic_params", "actor_opt", "critic_opt", "obs_stats", "key", "iteration")
-    leaves_a = jax.tree.leaves({k: sa[k] for k in keys})
-    leaves_b = jax.tree.leaves({k: sb[k] for k in keys})
-    assert len(leaves_a) == len(leaves_b) > 10
-    for x, y in zip(leaves_a, leaves_b, strict=True):
-        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    assert_same_learnt_state(sa, sb)
     rows_b = open(os.path.join(run_b, "metrics.csv")).read().strip().splitlines()
     assert len(rows_b) == 5  # header + 4 chunks, none repeated after the resume
 
