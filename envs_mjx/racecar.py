@@ -302,6 +302,10 @@ class Road:
     profile: jax.Array
 
 
+COUNTERS = ("damage", "collisions", "out_count", "slow_count", "overtakes", "overtaken", "time")
+"""The counters of :class:`RaceState`, zero at the start of an episode."""
+
+
 @struct.dataclass
 class RaceState:
     """``pipeline_state`` of ``racecar`` (unbatched; ``N = n_opponents``).
@@ -662,13 +666,7 @@ class RaceCar(RobotEnv):
             opp_factor=factor,
             opp_top=top,
             opp_ahead=jnp.ones((n,), jnp.float32),
-            damage=zero,
-            collisions=zero,
-            out_count=zero,
-            slow_count=zero,
-            overtakes=zero,
-            overtaken=zero,
-            time=zero,
+            **dict.fromkeys(COUNTERS, zero),
         )
         metrics = {name: zero for name in METRIC_NAMES}
         metrics.update(rank=self.rank(rs))
@@ -720,8 +718,10 @@ class RaceCar(RobotEnv):
         reward, terms = race_reward(
             theta, d, vx, rank, self.n_cars, penalised, cfg.rank_weight, cfg.penalty, cfg.penalty_mode
         )
-        ended = [success, backwards, too_slow, out_limit] + ([collision] if cfg.end_on_collision else [])
-        done = jnp.max(jnp.stack(ended))
+        events = {"success": success, "collision": collision, "out_of_track": out, "backwards": backwards,
+                  "too_slow": too_slow, "out_limit": out_limit}  # fmt: skip
+        ending = ("success", "backwards", "too_slow", "out_limit") + (("collision",) if cfg.end_on_collision else ())
+        done = jnp.max(jnp.stack([events[k] for k in ending]))
         rs = rs.replace(
             opp_ahead=ahead,
             damage=rs.damage + damage,
@@ -735,12 +735,7 @@ class RaceCar(RobotEnv):
         metrics = dict(state.metrics)
         metrics.update(
             terms,
-            success=success,
-            collision=collision,
-            out_of_track=out,
-            backwards=backwards,
-            too_slow=too_slow,
-            out_limit=out_limit,
+            **events,
             damage=rs.damage,
             collisions=rs.collisions,
             out_count=out_count,
