@@ -184,9 +184,7 @@ def check_episode(cfg: Any) -> None:
     check_range("et_limit", cfg.et_limit, 0.0)
 
 
-def make_params(
-    defaults: Mapping[str, Any], params: Mapping[str, Any] | None = None
-) -> dict[str, jax.Array]:
+def make_params(defaults: Mapping[str, Any], params: Mapping[str, Any] | None = None) -> dict[str, jax.Array]:
     """Episode parameters as float32 arrays: ``defaults`` updated by ``params``.
 
     Raises ``ValueError`` naming unknown keys and the valid ones.
@@ -286,7 +284,7 @@ def axis_errors(ref: jax.Array, real: jax.Array, wrap_axes: tuple[bool, ...]) ->
     return jnp.where(mask, wrap_angle(err), err)
 
 
-def rollout(env: Any, policy_fn: Callable[[jax.Array], jax.Array], params: Mapping[str, Any] | None = None) -> dict:
+def rollout(env: Any, policy_fn: Callable, params: Mapping[str, Any] | None = None, carry: Any = None) -> dict:
     """One episode from the reference's start with a deterministic policy (pure; jit it).
 
     Steps the unbatched ``env`` for ``env.max_steps`` control steps under ``lax.scan``; steps after
@@ -294,9 +292,11 @@ def rollout(env: Any, policy_fn: Callable[[jax.Array], jax.Array], params: Mappi
 
     Args:
       env: a tracking environment (``scara`` or ``unicycle``).
-      policy_fn: ``obs [O] -> action [A]`` in ``[-1, 1]``.
+      policy_fn: ``obs [O] -> action [A]`` in ``[-1, 1]``; with ``carry``, a policy with memory
+        ``(carry, obs [O]) -> (carry, action [A])``.
       params: episode parameters; default :func:`eval_params` (start at ``t = 0``, no early
         termination).  Given ones are completed with the test defaults.
+      carry: the memory the episode starts from (a recurrent policy's carry), or None.
     Returns:
       dict of arrays: ``sum_abs_error [3]``, ``mean_abs_error [3]`` (per step), ``abs_error [N, 3]``
       (masked steps 0), ``steps`` (int32), ``episode_return``, ``valid [N]`` (bool), ``ref_path
@@ -307,9 +307,12 @@ def rollout(env: Any, policy_fn: Callable[[jax.Array], jax.Array], params: Mappi
     state = env.reset(jax.random.PRNGKey(0), p)
     wrap = tuple(env.wrap_axes)
 
-    def body(carry, _):
-        st, alive = carry
-        nst = env.step(st, policy_fn(st.obs))
+    step = (lambda m, obs: (m, policy_fn(obs))) if carry is None else policy_fn
+
+    def body(loop, _):
+        st, memory, alive = loop
+        memory, action = step(memory, st.obs)
+        nst = env.step(st, action)
         err = jnp.abs(axis_errors(nst.info["ref_pos"], nst.info["ee_pos"], wrap))
         out = (
             jnp.where(alive, err, 0.0),
@@ -318,10 +321,10 @@ def rollout(env: Any, policy_fn: Callable[[jax.Array], jax.Array], params: Mappi
             jnp.where(alive, nst.info["ee_pos"], jnp.nan),
             jnp.where(alive, nst.reward, 0.0),
         )
-        return (nst, alive & (nst.done == 0)), out
+        return (nst, memory, alive & (nst.done == 0)), out
 
-    (_, _), (abs_err, valid, ref, real, rew) = jax.lax.scan(
-        body, (state, jnp.asarray(True)), None, length=env.max_steps
+    _, (abs_err, valid, ref, real, rew) = jax.lax.scan(
+        body, (state, () if carry is None else carry, jnp.asarray(True)), None, length=env.max_steps
     )
     steps = jnp.sum(valid.astype(jnp.int32))
     total = jnp.sum(abs_err, axis=0)
@@ -343,18 +346,17 @@ def _jitted_rollout(env: Any, policy_fn: Callable) -> Callable:
     return jax.jit(functools.partial(rollout, env, policy_fn))
 
 
-def test_episode(
-    env: Any, policy_fn: Callable[[jax.Array], jax.Array], params: Mapping[str, Any] | None = None
-) -> dict:
+def test_episode(env: Any, policy_fn: Callable, params: Mapping[str, Any] | None = None, carry: Any = None) -> dict:
     """Run :func:`rollout` jitted and return host values for tables and plots.
 
     The compiled rollout is cached per ``(env, policy_fn)`` object pair.  Inside a jitted training
-    loop call :func:`rollout` directly instead.
+    loop call :func:`rollout` directly instead.  ``carry``: as :func:`rollout` (a recurrent policy's
+    initial memory; then ``policy_fn`` is ``(carry, obs) -> (carry, action)``).
 
     Returns the keys of :func:`rollout` as NumPy arrays (``steps`` an ``int``) plus ``axis_names``
     (e.g. ``('x', 'y', 'z')`` or ``('x', 'y', 'theta')``).
     """
-    out = _jitted_rollout(env, policy_fn)(make_params(eval_params(), params))
+    out = _jitted_rollout(env, policy_fn)(make_params(eval_params(), params), carry)
     host = {k: np.asarray(v) for k, v in out.items()}
     host["steps"] = int(host["steps"])
     host["episode_return"] = float(host["episode_return"])

@@ -299,9 +299,7 @@ class Unicycle(tracking.TrackingEnv):
         turn = tracking.wrap_angle(nxt[2] - pose[2]) / (self._scale[1] * dt)
         return jnp.concatenate([step, turn[None], self.reference_action(k)])
 
-    def _obs(
-        self, pose: jax.Array, vel: jax.Array, pos_err: jax.Array, vel_err: jax.Array, k: jax.Array
-    ) -> jax.Array:
+    def _obs(self, pose: jax.Array, vel: jax.Array, pos_err: jax.Array, vel_err: jax.Array, k: jax.Array) -> jax.Array:
         """The 14-dim (``thesis``) or 19-dim (``extended``) observation of the module docstring."""
         vscale = jnp.stack([self._scale[0], self._scale[0], self._scale[1]])
         parts = [
@@ -347,6 +345,22 @@ class Unicycle(tracking.TrackingEnv):
             return mjx.step(self.mjx_model, d), tau
 
         return jax.lax.fori_loop(0, cfg.n_substeps, substep, (data, jnp.zeros(2, jnp.float32)))
+
+    def model_reward(self, state: State, action: jax.Array) -> jax.Array:
+        """The reward ``action`` would earn by the known kinematics: ``[A] -> []`` (unbatched).
+
+        One Euler step of Eq. 3.18 over ``dt`` from the pose in ``state`` with ``(v, w) = C ⊙ a``
+        (``a`` clipped to [-1, 1]), scored by Eq. 3.23 against the reference at step ``k + 1``
+        (before early termination zeroes anything).  In ``kinematic`` mode this is the reward
+        :meth:`step` returns; in ``dynamic`` mode an estimate that ignores the body's inertia.
+        The action search of two-stage training (thesis §5.6, Algorithm 9) ranks candidates by it.
+        """
+        cfg = self.config
+        cmd = self._scale * jnp.clip(action, -1.0, 1.0)
+        pose = state.info["pose"]
+        vel = jnp.stack([cmd[0] * jnp.cos(pose[2]), cmd[0] * jnp.sin(pose[2]), cmd[1]])
+        pos_err, vel_err = self._errors(self.reference(self._next_k(state)), pose + vel * cfg.dt, vel)
+        return unicycle_reward(pos_err, vel_err, cfg.omega_p, cfg.omega_v, cfg.a_p, cfg.a_v)[0]
 
     # -------------------------------------------------------------------- api
     def reset(self, rng: jax.Array, params: Mapping[str, Any] | None = None) -> State:

@@ -3,7 +3,8 @@
 The environment is one wrapped by ``envs_mjx.wrap_for_training`` (vmapped lanes, time limit
 with ``info["truncation"]``, true auto-reset with ``info["final_obs"]``).  :func:`rollout` runs
 every lane for all ``N`` steps; :func:`rollout_until_done` stops each lane at the end of its
-episode (a local buffer that closes early, thesis Algorithm 3, line 8).  Randomness per lane is
+episode (a local buffer that closes early, thesis Algorithm 3, line 8); :func:`rollout_with_memory`
+carries a recurrent policy's memory per lane (a new episode's from ``start_memory``).  Randomness per lane is
 keyed by global lane index (:func:`per_lane_keys`), so results do not depend on how lanes are
 spread over devices.
 """
@@ -19,10 +20,21 @@ from brax.envs.base import Env, State
 
 from jaxrl_robot.types import Transition
 
-__all__ = ["StochasticPolicy", "env_step", "lane_select", "per_lane_keys", "rollout", "rollout_until_done"]
+__all__ = [
+    "RecurrentStochasticPolicy",
+    "StochasticPolicy",
+    "env_step",
+    "lane_select",
+    "per_lane_keys",
+    "rollout",
+    "rollout_until_done",
+    "rollout_with_memory",
+]
 
 StochasticPolicy = Callable[[jax.Array, jax.Array], jax.Array]
 """``(key, obs [B, D]) -> action [B, A]``."""
+RecurrentStochasticPolicy = Callable[[jax.Array, Any, State], tuple[Any, jax.Array, Any]]
+"""``(key, memory [B, ...], state [B]) -> (memory [B, ...], action [B, A], record [B, ...])``."""
 
 
 def env_step(env: Env, state: State, action: jax.Array) -> tuple[State, Transition]:
@@ -62,10 +74,44 @@ def rollout(
       ``(final state, Transition [N, B])``.
     """
 
-    def body(s: State, k: jax.Array) -> tuple[State, Transition]:
-        return env_step(env, s, policy(k, s.obs))
+    def step(k: jax.Array, memory: tuple, s: State) -> tuple[tuple, jax.Array, tuple]:
+        return memory, policy(k, s.obs), ()
 
-    return jax.lax.scan(body, state, jax.random.split(key, num_steps))
+    state, _, (traj, _) = rollout_with_memory(key, env, state, (), step, num_steps, lambda ns: ())
+    return state, traj
+
+
+def rollout_with_memory(
+    key: jax.Array,
+    env: Env,
+    state: State,
+    memory: Any,
+    policy: RecurrentStochasticPolicy,
+    num_steps: int,
+    start_memory: Callable[[State], Any],
+) -> tuple[State, Any, tuple[Transition, Any]]:
+    """:func:`rollout` of a policy with memory (a recurrent network's carry, per lane).
+
+    Args:
+      key, env, state, num_steps: as :func:`rollout`.
+      memory: ``[B, ...]`` pytree the policy starts the first step from.
+      policy: ``(key, memory [B, ...], state [B]) -> (memory, action [B, A], record)``; ``record``
+        is any pytree ``[B, ...]`` kept per step (e.g. the memory the step started from).
+      start_memory: ``state [B] -> memory [B, ...]`` of episodes starting in ``state`` (called on
+        the state after each step; lanes whose episode ended take it, the others keep the policy's).
+    Returns:
+      ``(final state, final memory, (Transition [N, B], record [N, B, ...]))``.
+    """
+
+    def body(carry: tuple[State, Any], k: jax.Array):
+        s, mem = carry
+        mem, action, record = policy(k, mem, s)
+        ns, transition = env_step(env, s, action)
+        mem = lane_select(ns.done > 0, start_memory(ns), mem)
+        return (ns, mem), (transition, record)
+
+    (state, memory), out = jax.lax.scan(body, (state, memory), jax.random.split(key, num_steps))
+    return state, memory, out
 
 
 def rollout_until_done(

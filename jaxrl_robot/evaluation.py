@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 from brax.envs.base import Env
 
-from jaxrl_robot.types import Policy
+from jaxrl_robot.types import Policy, RecurrentPolicy, as_recurrent
 
 __all__ = ["run_test_episodes", "summarize_episodes", "tracking_error_sums"]
 
@@ -25,7 +25,7 @@ __all__ = ["run_test_episodes", "summarize_episodes", "tracking_error_sums"]
 def run_test_episodes(
     key: jax.Array,
     env: Env,
-    policy: Policy,
+    policy: Policy | RecurrentPolicy,
     num_episodes: int,
     episode_length: int | None = None,
     params: Any = None,
@@ -38,7 +38,8 @@ def run_test_episodes(
     Args:
       key: PRNG key; episode ``i`` resets with ``split(key, num_episodes)[i]``.
       env: an unbatched env (not wrapped for training).
-      policy: ``obs [E, D] -> action [E, A]``.
+      policy: ``obs [E, D] -> action [E, A]``, or a :class:`~jaxrl_robot.types.RecurrentPolicy`
+        (every episode starts from its ``carry``).
       num_episodes: E.
       episode_length: step limit (default ``env.episode_length``).
       params: optional episode parameters passed to ``env.reset``.
@@ -53,19 +54,22 @@ def run_test_episodes(
     else:
         state = jax.vmap(lambda k: env.reset(k, params))(keys)
     zeros = jnp.zeros((num_episodes,), jnp.float32)
-    init = (state, zeros, zeros, zeros, dict(state.metrics))
+    policy = as_recurrent(policy)
+    memory = jax.tree.map(lambda c: jnp.broadcast_to(c, (num_episodes,) + jnp.shape(c)), policy.carry)
+    init = (state, memory, zeros, zeros, zeros, dict(state.metrics))
 
     def body(carry, _):
-        s, finished, ret, length, final = carry
-        ns = jax.vmap(env.step)(s, policy(s.obs))
+        s, memory, finished, ret, length, final = carry
+        memory, action = policy.step(memory, s.obs)
+        ns = jax.vmap(env.step)(s, action)
         live = 1.0 - finished
         ret = ret + live * ns.reward
         length = length + live
         ending = live * ns.done.astype(jnp.float32)
         final = jax.tree.map(lambda f, m: jnp.where(live > 0, m, f), final, dict(ns.metrics))
-        return (ns, jnp.maximum(finished, ending), ret, length, final), None
+        return (ns, memory, jnp.maximum(finished, ending), ret, length, final), None
 
-    (_, finished, ret, length, final), _ = jax.lax.scan(body, init, None, length=limit)
+    (_, _, finished, ret, length, final), _ = jax.lax.scan(body, init, None, length=limit)
     out = {k: v for k, v in final.items() if v.shape == (num_episodes,)}
     out.update({"return": ret, "length": length, "terminated": finished})
     return out

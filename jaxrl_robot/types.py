@@ -13,13 +13,33 @@ from typing import Any, NamedTuple
 import jax
 from flax import struct
 
-__all__ = ["Metrics", "Policy", "RunningStats", "Trainer", "Transition"]
+__all__ = ["Metrics", "Policy", "RecurrentPolicy", "RunningStats", "Trainer", "Transition", "as_recurrent"]
 
 Metrics = dict[str, jax.Array]
 """Scalar metrics of one update chunk (name -> ``[]`` array)."""
 
 Policy = Callable[[jax.Array], jax.Array]
 """A deterministic policy ``obs [..., D] -> action [..., A]`` in the env's action space [-1, 1]."""
+
+
+class RecurrentPolicy(NamedTuple):
+    """A deterministic policy with memory (a recurrent network's carry).
+
+    Attributes:
+      carry: the memory one episode starts from, unbatched (``[...]`` leaves; a batch of ``E``
+        episodes broadcasts it to ``[E, ...]``).
+      step: ``(carry, obs [..., D]) -> (carry, action [..., A])``, action in [-1, 1].
+    """
+
+    carry: Any
+    step: Callable[[Any, jax.Array], tuple[Any, jax.Array]]
+
+
+def as_recurrent(policy: Policy | RecurrentPolicy) -> RecurrentPolicy:
+    """``policy`` as a :class:`RecurrentPolicy` (a memoryless one gets the empty carry ``()``)."""
+    if isinstance(policy, RecurrentPolicy):
+        return policy
+    return RecurrentPolicy(carry=(), step=lambda carry, obs: (carry, policy(obs)))
 
 
 class Transition(NamedTuple):
@@ -76,13 +96,14 @@ class Trainer(NamedTuple):
       update: ``state -> (state, metrics)``: one chunk of ``iterations_per_update`` training
         iterations; ``metrics`` are scalars (means over the chunk; episode statistics over the
         episodes that finished in the chunk, NaN where none did).
-      policy: ``state -> Policy``: the deterministic (mean) action for evaluation.
+      policy: ``state -> Policy`` (or a :class:`RecurrentPolicy`): the deterministic (mean)
+        action for evaluation.
       num_updates: chunks in the whole run.
       env_steps_per_update: environment steps consumed by one ``update``.
     """
 
     init: Callable[[jax.Array], Any]
     update: Callable[[Any], tuple[Any, Metrics]]
-    policy: Callable[[Any], Policy]
+    policy: Callable[[Any], Policy | RecurrentPolicy]
     num_updates: int
     env_steps_per_update: int

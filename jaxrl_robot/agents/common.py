@@ -43,6 +43,7 @@ from jaxrl_robot.types import Metrics, Policy, Trainer, Transition
 
 __all__ = [
     "ActorCriticConfig",
+    "action_sigma",
     "Setup",
     "apply_gradients",
     "apply_schedule",
@@ -167,15 +168,10 @@ def make_actor_critic(
     ``bn_axis_name``: the mapped axis the actor's batch statistics are averaged over (the lanes'
     mesh axis when one batch spans every device's lanes), or None.
     """
-    sigma = tuple(config.sigma)
-    if len(sigma) == 1:
-        sigma = sigma * action_size
-    if len(sigma) != action_size:
-        raise ConfigError(f"sigma={config.sigma!r} must have 1 or action_size={action_size} values")
     actor = GaussianActor(
         action_size=action_size,
         hidden=tuple(config.actor_hidden),
-        sigma=sigma,
+        sigma=action_sigma(config, action_size),
         learn_std=config.learn_std,
         batch_norm=config.batch_norm,
         bn_momentum=config.bn_momentum,
@@ -183,6 +179,16 @@ def make_actor_critic(
         bn_axis_name=bn_axis_name,
     )
     return actor, Critic(hidden=tuple(config.critic_hidden))
+
+
+def action_sigma(config: ActorCriticConfig, action_size: int) -> tuple[float, ...]:
+    """``config.sigma`` with one value per action dimension (a single value is broadcast)."""
+    sigma = tuple(config.sigma)
+    if len(sigma) == 1:
+        sigma = sigma * action_size
+    if len(sigma) != action_size:
+        raise ConfigError(f"sigma={config.sigma!r} must have 1 or action_size={action_size} values")
+    return sigma
 
 
 def make_optimizer(

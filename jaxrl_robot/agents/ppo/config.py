@@ -7,9 +7,12 @@ from dataclasses import dataclass
 from envs_mjx.config import ConfigError, check_choice, check_range
 from jaxrl_robot.agents.common import ActorCriticConfig, check_counts
 
-__all__ = ["OBJECTIVES", "PPOConfig"]
+__all__ = ["LSTM_STARTS", "OBJECTIVES", "POLICIES", "PRETRAINS", "PPOConfig"]
 
 OBJECTIVES = ("clip", "kl")
+POLICIES = ("mlp", "lstm")
+LSTM_STARTS = ("auto", "table", "zero")
+PRETRAINS = ("none", "action-search")
 
 
 @dataclass(frozen=True)
@@ -58,6 +61,37 @@ class PPOConfig(ActorCriticConfig):
     """Step the env's lanes in groups of this many, one group after another (0: all lanes of a
     device in one batch); must divide the lanes per device. Large lane counts of MJX physics run
     faster in groups that fit the GPU's cache (``envs_mjx.base.map_lanes``)."""
+    policy: str = "mlp"
+    """'mlp': feed-forward actor and critic; 'lstm': FC → LSTM → FC actor and critic (thesis §5.7;
+    ``actor_hidden`` / ``critic_hidden`` are the FC layers before the LSTM), trained on sequences of
+    ``seq_length`` steps from the LSTM states stored when they were collected."""
+    lstm_size: int = 256
+    """Units of the LSTM cell (policy='lstm')."""
+    seq_length: int = 10
+    """policy='lstm': steps per training sequence (truncated back-propagation through time); a
+    divisor of unroll_length. Mini-batches take whole sequences, B / (K · seq_length) per lane."""
+    lstm_start: str = "auto"
+    """policy='lstm': the LSTM state an episode starts from. 'table': the state stored for the
+    reference step RSI starts it at (``jaxrl_robot.recurrent``; tracking envs, which report the
+    step in ``info["k"]``); 'zero': zeros; 'auto': 'table' where the env reports the step."""
+    start_table_rate: float = 1.0
+    """ρ of the start-state table's update, ``(0, 1]`` (1: a visited step's entry becomes the mean
+    of this iteration's LSTM states at that step)."""
+    pretrain: str = "none"
+    """'action-search': two-stage training (thesis §5.6, Algorithm 9) — for the first
+    ``pretrain_episodes`` the actor is fitted by SGD to the best of ``pretrain_candidates`` random
+    actions ranked by the env's known kinematics (``env.model_reward``) wherever that beats the
+    policy's own action, while the critic fits λ-returns; PPO then fine-tunes. 'none': PPO only."""
+    pretrain_episodes: int = 200
+    """Pre-training length in episodes of the time limit: ``pretrain_episodes * episode_length`` env
+    steps over all lanes (rounded up to whole iterations), counted within ``total_steps``."""
+    pretrain_candidates: int = 200
+    """M: random actions tried at each visited state."""
+    pretrain_lr: float = 0.1
+    """Learning rate of the actor's plain SGD in pre-training."""
+    pretrain_epochs: int = 5
+    """Passes over each iteration's K·N examples: ``pretrain_epochs · K·N / B`` SGD steps on
+    mini-batches of B drawn like PPO's."""
     schedule: tuple[tuple[float, str, float], ...] = ()
     """Episode-parameter schedule: entries (start fraction of training, name in
     state.info["params"], value); from each start on, the parameter takes the value, broadcast
@@ -78,6 +112,27 @@ class PPOConfig(ActorCriticConfig):
         check_range("reset_refresh", self.reset_refresh, 0.0, 1.0, lo_open=True)
         check_range("reset_group", self.reset_group, 1)
         check_range("lane_group", self.lane_group, 0)
+        check_choice("policy", self.policy, POLICIES)
+        check_choice("lstm_start", self.lstm_start, LSTM_STARTS)
+        check_counts(self, "lstm_size", "seq_length")
+        check_range("start_table_rate", self.start_table_rate, 0.0, 1.0, lo_open=True)
+        check_choice("pretrain", self.pretrain, PRETRAINS)
+        check_counts(self, "pretrain_episodes", "pretrain_candidates", "pretrain_epochs")
+        check_range("pretrain_lr", self.pretrain_lr, 0.0, lo_open=True)
+        if self.pretrain != "none" and self.policy != "mlp":
+            raise ConfigError(f"pretrain={self.pretrain!r} needs policy='mlp' (got policy={self.policy!r})")
+        if self.policy == "lstm":
+            if self.batch_norm:
+                raise ConfigError("batch_norm=True is not available with policy='lstm'; set batch_norm=False")
+            if self.unroll_length % self.seq_length:
+                raise ConfigError(
+                    f"seq_length={self.seq_length} must divide unroll_length={self.unroll_length} (policy='lstm')"
+                )
+            if self.minibatch_size % (self.num_envs * self.seq_length):
+                raise ConfigError(
+                    f"minibatch_size={self.minibatch_size} must be a multiple of num_envs * seq_length = "
+                    f"{self.num_envs * self.seq_length} (policy='lstm': whole sequences from every lane)"
+                )
         if self.minibatch_size % self.num_envs:
             raise ConfigError(
                 f"minibatch_size={self.minibatch_size} must be a multiple of num_envs={self.num_envs} "

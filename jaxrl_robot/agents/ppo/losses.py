@@ -106,20 +106,28 @@ def value_loss(values: jax.Array, targets: jax.Array) -> jax.Array:
     return jnp.mean((jax.lax.stop_gradient(targets) - values) ** 2)
 
 
-def make_actor_loss(config: PPOConfig, actor: GaussianActor) -> Callable:
+def make_actor_loss(config: PPOConfig, actor: GaussianActor, forward: Callable | None = None) -> Callable:
     """``loss(params, stats, minibatch, beta) -> (loss, (new_stats, clip_fraction, entropy, kl))``.
 
     ``minibatch = (obs [B, D], action [B, A], advantage [B], old_mean [B, A], old_log_std [B, A])``
     where ``old_*`` are π_old's outputs as it acted. π_θ runs in training mode (batch
-    statistics; ``new_stats`` are the advanced moving averages). The ratio
+    statistics; ``new_stats`` are the advanced moving averages): ``forward(params, stats, obs) ->
+    ((mean, log_std) [B, A], new_stats)``, by default ``apply_actor(actor, ..., train=True)``; a
+    recurrent actor's ``forward`` takes its sequences (with their stored start states) in place of
+    ``obs`` and returns ``[B, A]`` outputs, ``B`` the steps of all sequences. The ratio
     ``r = π_θ(a|s) / π_old(a|s)`` enters the clipped objective (Eq. 5.5) or the KL-penalty
     objective (Eq. 5.3) with ``kl = KL(π_old ‖ π_θ)``, mean over the mini-batch; minus
     ``entropy_coef`` times the mean entropy.
     """
 
+    if forward is None:
+
+        def forward(params: Any, stats: Any, obs: jax.Array):
+            return apply_actor(actor, params, stats, obs, train=True)
+
     def loss_fn(params: Any, stats: Any, mb: tuple, beta: jax.Array):
-        obs, action, adv, old_mean, old_log_std = mb
-        (mean, log_std), new_stats = apply_actor(actor, params, stats, obs, train=True)
+        inputs, action, adv, old_mean, old_log_std = mb
+        (mean, log_std), new_stats = forward(params, stats, inputs)
         log_prob = gaussian_log_prob(mean, log_std, action)
         old_log_prob = gaussian_log_prob(old_mean, old_log_std, action)
         kl = gaussian_kl(old_mean, old_log_std, mean, log_std)

@@ -12,12 +12,19 @@ termination and truncation apart; then m actor and n critic Adam steps run on mi
 of B transitions (Algorithm 8), gradients averaged over devices. The lanes are split over
 the device mesh with ``shard_map`` (``jaxrl_robot.parallel``); parameters stay replicated.
 
+``policy='lstm'`` (thesis §5.7) runs the same iteration with recurrent networks
+(:mod:`jaxrl_robot.agents.ppo.nets`): lanes carry the LSTM states of actor and critic, every
+step records the states it started from, updates run on mini-batches of whole sequences of
+``seq_length`` steps from those records, and an episode that RSI starts at reference step ``k``
+starts from the state the start-state table holds for ``k`` (:mod:`jaxrl_robot.recurrent`).
+
 Randomness is keyed by *global* lane index (action noise, mini-batch choice, env resets), so
 the result does not depend on how many devices share the lanes.
 """
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import jax
@@ -26,22 +33,18 @@ from brax.envs.base import Env, State
 from flax import struct
 from jax.sharding import Mesh
 
+from envs_mjx.config import ConfigError
 from jaxrl_robot import parallel
-from jaxrl_robot.acting import per_lane_keys, rollout
+from jaxrl_robot.acting import per_lane_keys, rollout_with_memory
 from jaxrl_robot.agents import common
 from jaxrl_robot.agents.ppo.config import PPOConfig
 from jaxrl_robot.agents.ppo.losses import adapt_kl_beta, make_actor_loss, value_loss
-from jaxrl_robot.networks import (
-    Critic,
-    GaussianActor,
-    apply_actor,
-    gaussian_kl,
-    init_running_stats,
-    normalize,
-    update_running_stats,
-)
+from jaxrl_robot.agents.ppo.nets import make_ppo_nets
+from jaxrl_robot.agents.ppo.pretrain import action_search, make_imitation_update, model_reward_of
+from jaxrl_robot.networks import gaussian_kl, init_running_stats, normalize, update_running_stats
+from jaxrl_robot.recurrent import table_lookup, table_update
 from jaxrl_robot.returns import gae, lambda_returns
-from jaxrl_robot.types import Metrics, Policy, RunningStats, Trainer
+from jaxrl_robot.types import Metrics, Policy, RecurrentPolicy, RunningStats, Trainer
 
 __all__ = ["PPOState", "make_actor_loss", "make_networks", "make_train", "make_trainer"]
 
@@ -59,6 +62,9 @@ class PPOState:
       obs_stats: observation normaliser (unused unless ``normalize_obs``).
       kl_beta: ``[]`` β of the adaptive KL penalty.
       env_state: ``State [K]`` of the wrapped env (lanes split over devices).
+      memory: ``[K, ...]`` per-lane LSTM states ``{"actor": (c, h), "critic": (c, h)}`` (``()`` for the MLP).
+      start_table: ``[max_steps + 1, ...]`` the start-state table (``()`` unless policy='lstm'
+        with lstm_start 'table').
       key: PRNG key of the run.
       iteration: ``[]`` int32 iterations done.
     """
@@ -71,13 +77,50 @@ class PPOState:
     obs_stats: RunningStats
     kl_beta: jax.Array
     env_state: State
+    memory: Any
+    start_table: Any
     key: jax.Array
     iteration: jax.Array
 
 
-def make_networks(config: PPOConfig, action_size: int) -> tuple[GaussianActor, Critic]:
+def make_networks(config: PPOConfig, action_size: int) -> tuple[Any, Any]:
     """The actor and critic modules of ``config``; σ is broadcast to ``action_size``."""
-    return common.make_actor_critic(config, action_size, bn_axis_name=_LANES)
+    nets = make_ppo_nets(config, action_size, bn_axis_name=_LANES)
+    return nets.actor, nets.critic
+
+
+def uses_start_table(config: PPOConfig, env: Env) -> bool:
+    """Whether episodes start from the start-state table (policy 'lstm'; ``config.lstm_start``):
+    the env must report its reference step in ``info["k"]`` and have ``max_steps``."""
+    if config.policy != "lstm" or config.lstm_start == "zero":
+        return False
+    reports_k = hasattr(env, "max_steps") and "k" in jax.eval_shape(env.reset, jax.random.PRNGKey(0)).info
+    if config.lstm_start == "table" and not reports_k:
+        raise ConfigError(
+            "lstm_start='table' needs an env that reports its reference step (info['k'], max_steps); "
+            "valid here: 'zero' or 'auto'"
+        )
+    return reports_k
+
+
+def pretrain_iterations(config: PPOConfig, env: Env) -> int:
+    """Iterations of action-search pre-training (0 unless ``config.pretrain``): ``pretrain_episodes``
+    episodes of the time limit, rounded up to whole iterations of K·N steps."""
+    if config.pretrain == "none":
+        return 0
+    if model_reward_of(env) is None:
+        raise ConfigError(
+            f"pretrain={config.pretrain!r} needs an env with known kinematics (model_reward); "
+            f"{type(env).__name__} has none. Envs that have it: unicycle; valid here: pretrain='none'"
+        )
+    episode_length = config.episode_length or env.episode_length
+    iterations = math.ceil(config.pretrain_episodes * episode_length / (config.num_envs * config.unroll_length))
+    if iterations >= config.total_iterations:
+        raise ConfigError(
+            f"pretrain_episodes={config.pretrain_episodes} ({iterations} iterations) leaves no PPO iterations "
+            f"of total_steps={config.total_steps} ({config.total_iterations} iterations)"
+        )
+    return iterations
 
 
 def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, iterations_per_update: int = 1) -> Trainer:
@@ -98,8 +141,11 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
         lane_group=config.lane_group,
     )
     N, k_local, obs_size = config.unroll_length, run.local_lanes, run.obs_size
-    b_lane = config.minibatch_size // config.num_envs  # transitions per lane in each mini-batch
-    actor, critic = make_networks(config, run.action_size)
+    nets = make_ppo_nets(config, run.action_size, bn_axis_name=_LANES)
+    L = nets.seq_length  # steps per training sequence (1: the MLP)
+    b_seq = config.minibatch_size // (config.num_envs * L)  # sequences per lane in each mini-batch
+    use_table = uses_start_table(config, env)
+    pretrain_iters = pretrain_iterations(config, env)
     actor_tx = common.make_optimizer(config.actor_lr, config.max_grad_norm)
     critic_tx = common.make_optimizer(config.critic_lr, config.max_grad_norm)
     tables = common.schedule_tables(config.schedule, env)
@@ -108,15 +154,21 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
     def obs_norm(stats: RunningStats, obs: jax.Array) -> jax.Array:
         return normalize(stats if config.normalize_obs else None, obs)
 
-    def act(state: PPOState, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
-        """The acting policy's ``(mean, log_std)`` (moving batch-norm statistics, normalised obs)."""
-        (mean, log_std), _ = apply_actor(actor, state.actor_params, state.actor_stats, obs_norm(state.obs_stats, obs))
-        return mean, log_std
+    def act(state: PPOState, memory: Any, obs: jax.Array) -> tuple[Any, tuple[jax.Array, jax.Array]]:
+        """``(memory, (mean, log_std))`` of the acting policy (moving batch-norm statistics, normalised obs)."""
+        obs = obs_norm(state.obs_stats, obs)
+        return nets.act(state.actor_params, state.actor_stats, state.critic_params, memory, obs)
+
+    def start_memory(state: PPOState, env_state: State) -> Any:
+        """The memory of episodes starting in ``env_state`` ``[B]``: their table entries, or zeros."""
+        if use_table:
+            return table_lookup(state.start_table, env_state.info["k"])
+        return nets.memory(env_state.done.shape)
 
     # ---- init --------------------------------------------------------------------------
     def init(key: jax.Array) -> PPOState:
         k_actor, k_critic, k_env, k_run = jax.random.split(key, 4)
-        actor_params, actor_stats, critic_params = common.init_actor_critic(k_actor, k_critic, actor, critic, obs_size)
+        actor_params, actor_stats, critic_params = nets.init(k_actor, k_critic, obs_size)
         return PPOState(
             actor_params=actor_params,
             actor_stats=actor_stats,
@@ -126,28 +178,43 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
             obs_stats=init_running_stats(obs_size),
             kl_beta=jnp.asarray(config.kl_beta, jnp.float32),
             env_state=run.reset(k_env, lambda: common.initial_env_params(env, tables)),
+            memory=nets.memory((config.num_envs,)),
+            start_table=nets.memory((env.max_steps + 1,)) if use_table else (),
             key=k_run,
             iteration=jnp.zeros((), jnp.int32),
         )
 
     # ---- one iteration (inside shard_map: this device's k_local lanes) -----------------
     def minibatch(key: jax.Array, lane_ids: jax.Array, data: Any) -> Any:
-        """``b_lane`` steps from every lane: ``[N, k_local, ...] -> [b_lane * k_local, ...]``."""
+        """``b_seq`` whole sequences of ``L`` steps from every lane (drawn without replacement):
+        ``[N, k_local, ...] -> [L, b_seq * k_local, ...]``."""
         keys = per_lane_keys(key, lane_ids)
-        idx = jax.vmap(lambda k: jax.random.permutation(k, N)[:b_lane], out_axes=1)(keys)  # [b, k_local]
+        idx = jax.vmap(lambda k: jax.random.permutation(k, N // L)[:b_seq], out_axes=1)(keys)  # [b_seq, k_local]
 
         def take(x: jax.Array) -> jax.Array:
-            ix = idx.reshape(idx.shape + (1,) * (x.ndim - 2))
-            picked = jnp.take_along_axis(x, ix, axis=0)
-            return picked.reshape((b_lane * k_local,) + x.shape[2:])
+            seqs = x.reshape((N // L, L) + x.shape[1:])
+            ix = idx.reshape((b_seq, 1) + idx.shape[1:] + (1,) * (x.ndim - 2))
+            picked = jnp.moveaxis(jnp.take_along_axis(seqs, ix, axis=0), 1, 0)  # [L, b_seq, k_local, ...]
+            return picked.reshape((L, b_seq * k_local) + x.shape[2:])
 
         return jax.tree.map(take, data)
 
-    actor_loss_fn = make_actor_loss(config, actor)
+    def flat(x: jax.Array) -> jax.Array:
+        """``[L, B, ...] -> [L * B, ...]``."""
+        return x.reshape((-1,) + x.shape[2:])
+
+    def actor_forward(params, stats, inputs):
+        (mean, log_std), stats = nets.actor_forward(params, stats, *inputs, train=True)
+        return (flat(mean), flat(log_std)), stats
+
+    actor_loss_fn = make_actor_loss(config, nets.actor, actor_forward)
+    if pretrain_iters:
+        steps = max(1, config.pretrain_epochs * config.num_envs * N // config.minibatch_size)
+        imitate = make_imitation_update(actor_forward, minibatch, steps, config.pretrain_lr)
 
     def critic_loss_fn(params, mb):
-        obs, targets = mb
-        return value_loss(critic.apply({"params": params}, obs), targets)
+        inputs, targets = mb
+        return value_loss(flat(nets.critic_forward(params, *inputs)[0]), flat(targets))
 
     def iteration(state: PPOState) -> tuple[PPOState, Metrics]:
         key, k_roll, k_actor, k_critic = jax.random.split(state.key, 4)
@@ -155,18 +222,46 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
         progress = state.iteration.astype(jnp.float32) / schedule_len
         env_state = common.apply_schedule(state.env_state, tables, progress)
 
-        def policy(k: jax.Array, obs: jax.Array) -> jax.Array:
-            return common.sample_lanes(k, lane_ids, *act(state, obs))
+        pretraining = state.iteration < pretrain_iters
 
-        env_state, traj = rollout(k_roll, run.env, env_state, policy, N)  # [N, k_local]
+        def search(k: jax.Array, s: State) -> tuple[jax.Array, jax.Array]:
+            """Action search at every visited state while pre-training (Algorithm 9, lines 7-9)."""
+            if not pretrain_iters:
+                return ()
+
+            def best() -> tuple[jax.Array, jax.Array]:
+                model = model_reward_of(env)
+                return action_search(k, lane_ids, model, s, config.pretrain_candidates, run.action_size)
+
+            def skip() -> tuple[jax.Array, jax.Array]:
+                return jnp.zeros((k_local, run.action_size)), jnp.full((k_local,), -jnp.inf)
+
+            return jax.lax.cond(pretraining, best, skip)
+
+        def policy(k: jax.Array, memory: Any, s: State) -> tuple[Any, jax.Array, Any]:
+            memory_next, (mean, log_std) = act(state, memory, s.obs)
+            record = (memory, s.info["k"] if use_table else (), search(jax.random.fold_in(k, 1), s))
+            return memory_next, common.sample_lanes(k, lane_ids, mean, log_std), record
+
+        first_done = env_state.done.astype(jnp.float32)
+        env_state, memory, (traj, (mem_seq, k_seq, searched)) = rollout_with_memory(
+            k_roll, run.env, env_state, state.memory, policy, N, lambda ns: start_memory(state, ns)
+        )  # [N, k_local]
+        # A step restarts from its recorded memory at an episode start and at a sequence start.
+        starts = jnp.concatenate([first_done[None], traj.done[:-1]])
+        reset = jnp.maximum(starts, (jnp.arange(N) % L == 0).astype(jnp.float32)[:, None])
+        start_table = state.start_table
+        if use_table:
+            start_table = table_update(start_table, k_seq, mem_seq, 1.0 - starts, config.start_table_rate)
         obs_stats = state.obs_stats
         if config.normalize_obs:
             obs_stats = update_running_stats(obs_stats, traj.obs, _LANES)
         obs = obs_norm(obs_stats, traj.obs)
         next_obs = obs_norm(obs_stats, traj.next_obs)
+        inputs = (mem_seq, reset, obs)
 
-        values = critic.apply({"params": state.critic_params}, obs)
-        next_values = critic.apply({"params": state.critic_params}, next_obs)
+        values, after = nets.critic_forward(state.critic_params, *inputs)
+        next_values = nets.next_values(state.critic_params, after, next_obs)
         rewards = traj.reward * config.reward_scale
         per_lane = dict(in_axes=(1, 1, 1, 1, 1, None, None), out_axes=1)
         adv = jax.vmap(gae, **per_lane)(
@@ -182,33 +277,50 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
 
         # m actor updates (Algorithm 8, lines 4-10); π_old is the policy that collected the data,
         # exactly as it acted (moving batch-norm statistics, the observation normaliser it saw).
-        old_mean, old_log_std = act(state, traj.obs)
+        old_inputs = (mem_seq, reset, obs_norm(state.obs_stats, traj.obs))
+        (old_mean, old_log_std), _ = nets.actor_forward(state.actor_params, state.actor_stats, *old_inputs, False)
 
         def actor_step(carry, k):
             params, stats, opt = carry
-            mb = minibatch(k, lane_ids, (obs, traj.action, adv, old_mean, old_log_std))
+            inputs_mb, *rest = minibatch(k, lane_ids, (inputs, traj.action, adv, old_mean, old_log_std))
+            mb = (inputs_mb, *map(flat, rest))
             grad_fn = jax.value_and_grad(actor_loss_fn, has_aux=True)
             (loss, (stats, clip_frac, entropy, _)), grads = grad_fn(params, stats, mb, state.kl_beta)
             params, opt = common.apply_gradients(actor_tx, parallel.pmean(grads), opt, params)
             return (params, stats, opt), (loss, clip_frac, entropy)
 
-        carry = (state.actor_params, state.actor_stats, state.actor_opt)
-        (actor_params, actor_stats, actor_opt), (a_loss, clip_frac, entropy) = jax.lax.scan(
-            actor_step, carry, jax.random.split(k_actor, config.actor_updates)
-        )
+        def ppo_actor_update():
+            carry = (state.actor_params, state.actor_stats, state.actor_opt)
+            carry, losses = jax.lax.scan(actor_step, carry, jax.random.split(k_actor, config.actor_updates))
+            return carry, tuple(map(jnp.mean, losses))
+
+        def imitation_update():
+            """Pre-training: the actor's mean fitted to the searched actions that beat its own (Algorithm 9)."""
+            target, best_reward = searched
+            better = (best_reward > traj.reward).astype(jnp.float32)
+            args = (state.actor_params, state.actor_stats, inputs, target, better)
+            (params, stats), (loss, entropy) = imitate(k_actor, lane_ids, *args)
+            return (params, stats, state.actor_opt), (loss, jnp.zeros(()), entropy)
+
+        if pretrain_iters:
+            actor_out = jax.lax.cond(pretraining, imitation_update, ppo_actor_update)
+        else:
+            actor_out = ppo_actor_update()
+        (actor_params, actor_stats, actor_opt), (a_loss, clip_frac, entropy) = actor_out
 
         # D of Eq. 5.4 on all K·N transitions: π_old as it acted vs π_θ as it will act; then β's
         # halve/double rule.
-        (new_mean, new_log_std), _ = apply_actor(actor, actor_params, actor_stats, obs)
+        (new_mean, new_log_std), _ = nets.actor_forward(actor_params, actor_stats, *inputs, False)
         kl = parallel.pmean(jnp.mean(gaussian_kl(old_mean, old_log_std, new_mean, new_log_std)))
         kl_beta = state.kl_beta
         if config.objective == "kl":
-            kl_beta = adapt_kl_beta(kl_beta, kl, config.kl_target, config.kl_beta_min, config.kl_beta_max)
+            adapted = adapt_kl_beta(kl_beta, kl, config.kl_target, config.kl_beta_min, config.kl_beta_max)
+            kl_beta = jnp.where(pretraining, kl_beta, adapted)
 
         # n critic updates on λ-return targets (Algorithm 8, lines 11-16).
         def critic_step(carry, k):
             params, opt = carry
-            mb = minibatch(k, lane_ids, (obs, targets))
+            mb = minibatch(k, lane_ids, (inputs, targets))
             loss, grads = jax.value_and_grad(critic_loss_fn)(params, mb)
             return common.apply_gradients(critic_tx, parallel.pmean(grads), opt, params), loss
 
@@ -221,7 +333,7 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
         new_state = state.replace(
             actor_params=actor_params, actor_stats=actor_stats, actor_opt=actor_opt,
             critic_params=critic_params, critic_opt=critic_opt, obs_stats=obs_stats, kl_beta=kl_beta,
-            env_state=env_state, key=key, iteration=state.iteration + 1,
+            env_state=env_state, memory=memory, start_table=start_table, key=key, iteration=state.iteration + 1,
         )  # fmt: skip
         metrics = {
             "actor_loss": parallel.pmean(jnp.mean(a_loss)),
@@ -233,17 +345,29 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
             "value": parallel.pmean(jnp.mean(values)),
             "reward": parallel.pmean(jnp.mean(traj.reward)),
         }
+        if pretrain_iters:
+            metrics["pretraining"] = pretraining.astype(jnp.float32)
+            metrics["search_better"] = parallel.pmean(jnp.mean((searched[1] > traj.reward).astype(jnp.float32)))
         return new_state, (metrics, common.episode_sums(traj))
 
     def chunk(state: PPOState) -> tuple[PPOState, Metrics]:
         state, (metrics, sums) = jax.lax.scan(lambda s, _: iteration(s), state, None, length=iterations_per_update)
         return state, common.chunk_metrics(metrics, sums)
 
-    specs = common.state_specs(PPOState, env_state=parallel.P(_LANES))
+    specs = common.state_specs(PPOState, env_state=parallel.P(_LANES), memory=parallel.P(_LANES))
     update = parallel.shard_lanes(chunk, run.mesh, in_specs=(specs,), out_specs=(specs, parallel.P()))
 
-    def policy(state: PPOState) -> Policy:
-        return lambda obs: act(state, obs)[0]
+    def policy(state: PPOState) -> Policy | RecurrentPolicy:
+        if config.policy == "mlp":
+            return lambda obs: act(state, (), obs)[1][0]
+        # One episode from t = 0: the table's entry for step 0 (zeros), carried through the episode.
+        carry = jax.tree.map(lambda x: x[0], state.start_table) if use_table else nets.memory(())
+
+        def step(memory: Any, obs: jax.Array) -> tuple[Any, jax.Array]:
+            memory, (mean, _) = act(state, memory, obs)
+            return memory, mean
+
+        return RecurrentPolicy(carry, step)
 
     return run.trainer(init, update, policy)
 
