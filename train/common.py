@@ -655,6 +655,8 @@ class AlgorithmCLI:
         which the trainer spreads its lanes.
       env_settings: ``args -> env overrides`` for :func:`make_env` (default :func:`env_overrides`).
       env_fields: options of ``args_type`` beyond ``RunOptions`` that ``env_settings`` reads.
+      preset_fields: ``str`` choice fields of ``config_type`` that select a variant of the preset
+        (e.g. PPO's ``policy``): read ahead and set in the config of the ``args`` the preset gets.
       after: called on process 0 with :func:`run`'s result (e.g. extra figures).
     """
 
@@ -665,6 +667,7 @@ class AlgorithmCLI:
     make_trainer: Callable[[Any, Env, Any, Mesh], tuple[Trainer, int]]
     env_settings: Callable[[Any], dict[str, Any]] = env_overrides
     env_fields: tuple[str, ...] = ()
+    preset_fields: tuple[str, ...] = ()
     after: Callable[[dict[str, Any]], Any] | None = None
 
     def args(self, config: Any = None, **options: Any) -> Any:
@@ -675,13 +678,14 @@ class AlgorithmCLI:
         """Parse the command line: the preset's defaults for ``--env`` (and its env settings) first,
         then every flag; with ``--resume DIR`` the arguments saved in that run (:meth:`args_from_saved`)."""
         argv = sys.argv[1:] if argv is None else list(argv)
-        known = preparse(argv, self.env_fields)
+        known = preparse(argv, (*self.env_fields, *self.preset_fields))
         if known.resume:
             preset, config = known.preset, self.config_type()
         else:
             preset = resolve_preset(known.preset)
             fields = ("env", "reward", "env_config", *self.env_fields)
-            ahead = self.args(preset=preset, **{k: getattr(known, k) for k in fields})
+            variant = {k: getattr(known, k) for k in self.preset_fields if getattr(known, k) is not None}
+            ahead = self.args(self.config_type(**variant), preset=preset, **{k: getattr(known, k) for k in fields})
             config = self.preset(ahead, make_env(known.env, self.env_settings(ahead)))
         default = self.args(config, env=known.env, preset=preset)
         args = tyro.cli(self.args_type, args=argv, default=default, prog=f"python -m train.{self.name}")

@@ -10,6 +10,8 @@ Examples::
     python -m train.ppo --env arm7 --reward path --seed 3
     python -m train.ppo --env unicycle --env-config trajectory=ellipse
     python -m train.ppo --env arm7 --preset thesis --objective kl
+    python -m train.ppo --env unicycle --policy lstm        # recurrent actor and critic (thesis §5.7)
+    python -m train.ppo --env unicycle --pretrain action-search --pretrain-episodes 200   # two-stage (§5.6)
     python -m train.ppo --resume runs/ppo-arm7-20260101-120000
 
 The run options (``--env``, ``--seed``, ``--out``, ``--resume``, ``--chunks``, the process
@@ -46,8 +48,9 @@ def env_settings(args: Args) -> dict[str, Any]:
 
 
 def preset(args: Args, env: Any) -> PPOConfig:
-    """The :class:`PPOConfig` of ``args.preset`` for ``env``."""
-    return ppo_preset(args.preset, args.env, common.episode_length(env), int(env.action_size))[0]
+    """The :class:`PPOConfig` of ``args.preset`` for ``env`` and the ``--policy`` / ``--pretrain`` chosen."""
+    variant = {"policy": args.ppo.policy, "pretrain": args.ppo.pretrain}
+    return ppo_preset(args.preset, args.env, common.episode_length(env), int(env.action_size), **variant)[0]
 
 
 def make_trainer(args: Args, env: Any, cfg: PPOConfig, mesh: Mesh):
@@ -60,7 +63,7 @@ def make_trainer(args: Args, env: Any, cfg: PPOConfig, mesh: Mesh):
 
 CLI = common.AlgorithmCLI(
     name="ppo", args_type=Args, config_type=PPOConfig, preset=preset, make_trainer=make_trainer,
-    env_settings=env_settings,
+    env_settings=env_settings, preset_fields=("policy", "pretrain"),
 )  # fmt: skip
 
 

@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 
 from envs_mjx import make as make_env
-from envs_mjx import tracking
 from envs_mjx.base import wrap_for_training
 from envs_mjx.config import ConfigError
 from jaxrl_robot.acting import rollout_with_memory
@@ -21,8 +20,11 @@ from jaxrl_robot.agents.ppo import PPOConfig, make_trainer
 from jaxrl_robot.agents.ppo.nets import make_ppo_nets
 from jaxrl_robot.agents.ppo.pretrain import action_search, imitation_loss
 from jaxrl_robot.checkpoint import Checkpointer
+from jaxrl_robot.evaluation import run_test_episodes
 from jaxrl_robot.recurrent import table_lookup, table_update, unroll
 from jaxrl_robot.types import RecurrentPolicy
+from train.common import evaluate
+from train.presets import ppo_preset
 
 
 @pytest.fixture(scope="module")
@@ -194,8 +196,10 @@ def test_lstm_ppo_learns_and_fills_the_start_table(lstm, unicycle):
     assert np.mean(np.abs(actor_h[1:]).sum(axis=1) > 0) > 0.9  # nearly every later step was visited
     policy = trainer.policy(state)
     assert isinstance(policy, RecurrentPolicy)
-    result = tracking.test_episode(unicycle, policy.step, carry=policy.carry)
-    assert result["steps"] == unicycle.max_steps and np.all(np.isfinite(result["sum_abs_error"]))
+    summary = evaluate(jax.random.PRNGKey(0), unicycle, policy, 1)  # the CLI's test episode from t = 0
+    assert summary["steps"] == unicycle.max_steps and np.isfinite([summary[a] for a in ("x", "y", "theta")]).all()
+    episodes = run_test_episodes(jax.random.PRNGKey(1), unicycle, policy, 3, episode_length=20)
+    assert episodes["length"].tolist() == [20.0, 20.0, 20.0] and np.isfinite(episodes["return"]).all()
 
 
 def test_lstm_checkpoint_continues_exactly(lstm, tmp_path):
@@ -237,3 +241,16 @@ def test_action_search_pretraining_outlearns_ppo_alone_on_the_same_budget(unicyc
             assert float(first["pretraining"]) == 1.0 and float(second["pretraining"]) == 0.0
             assert float(first["search_better"]) > 0.5
     assert rewards["action-search"] > 0.85 and rewards["none"] < 0.6, rewards
+
+
+@pytest.mark.parametrize("name", ["thesis", "cpu", "fast"])
+def test_presets_of_the_variants_are_valid_and_follow_the_thesis(name):
+    lstm = ppo_preset(name, "unicycle", 314, 2, policy="lstm")[0].validate()
+    assert (lstm.policy, lstm.actor_hidden, lstm.lstm_size, lstm.seq_length) == ("lstm", (256,), 256, 10)
+    per_lane, per_batch = lstm.unroll_length // 10, lstm.minibatch_size // (lstm.num_envs * 10)
+    assert lstm.actor_updates * per_batch / per_lane == (2 if name != "fast" else 4)  # uses of each sequence
+    assert [e[2] for e in lstm.schedule if e[1] == "start_hi"] == [1.0, 0.5, 0.25, 0.0]  # ... ends from t = 0
+    mlp = ppo_preset(name, "unicycle", 314, 2)[0]
+    two = ppo_preset(name, "unicycle", 314, 2, pretrain="action-search")[0].validate()
+    assert (two.pretrain, two.pretrain_episodes, two.pretrain_candidates) == ("action-search", 200, 200)
+    assert two.total_steps == 200 * 314 + 2 * mlp.total_steps // 3
