@@ -81,10 +81,18 @@ def ppo_env_overrides(name: str, env_name: str) -> dict:
     ``arm7`` under ``thesis`` and ``cpu`` runs in ``kinematic`` mode — the thesis's setting, and
     the one that is fast on a CPU: MJX's ``pd`` physics of the 7-link chain compiles and runs
     slowly on CPUs (see the foundation benchmark). ``fast`` keeps the env's default (``pd``).
+
+    ``unicycle`` under ``cpu`` and ``fast`` trains with a sharper position term, ``a_p = 100``
+    instead of Eq. 3.23's 1: with a_p = 1 a lag of a few centimetres costs almost nothing and the
+    robot drifted along its path (H100, sine, 3 seeds, 12 M steps: x sums 23.5 ± 10.7 at a_p = 1,
+    6.3 at 10, 4.4 at 30, 3.9 at 100; at 30 M steps and a_p = 100: 0.63 / 0.95 / 0.29 for x / y /
+    θ; ``benchmarks/results/gpu-nvidia_h100_80gb_hbm3-ppo_tracking.md``). ``thesis`` keeps a_p = 1.
     """
     name = resolve_preset(name)
     if _family(env_name) == "arm" and name in ("thesis", "cpu"):
         return {"mode": "kinematic"}
+    if env_name.split(":")[-1] == "unicycle" and name in ("cpu", "fast"):
+        return {"a_p": 100.0}
     return {}
 
 
@@ -139,53 +147,21 @@ def _ppo_base_preset(name: str, env_name: str, episode_length: int, action_size:
     if family == "arm":
         # Table 5.2 and §5.4: 2 x 200 nets, batch-norm actor, σ = [0.8, 0.8, 0.1].
         base = PPOConfig(
-            actor_lr=1e-4,
-            critic_lr=5e-4,
-            clip_eps=0.2,
-            gamma=0.9,
-            gae_lambda=0.95,
-            sigma=(0.8, 0.8, 0.1),
-            actor_hidden=(200, 200),
-            critic_hidden=(200, 200),
-            batch_norm=True,
+            actor_lr=1e-4, critic_lr=5e-4, clip_eps=0.2, gamma=0.9, gae_lambda=0.95, sigma=(0.8, 0.8, 0.1),
+            actor_hidden=(200, 200), critic_hidden=(200, 200), batch_norm=True,
         )
         presets = {
-            "thesis": dict(
-                num_envs=4,
-                unroll_length=8,
-                minibatch_size=32,
-                actor_updates=5,
-                critic_updates=5,
-                total_steps=2000 * episode_length,
-            ),
+            "thesis": dict(num_envs=4, unroll_length=8, minibatch_size=32, actor_updates=5, critic_updates=5,
+                           total_steps=2000 * episode_length),
             # Batch-norm off: with BN the acting policy (moving averages) and the updated one (batch
             # statistics) drift apart and learning oscillated (89 % vs 100 % test success at 300 k steps).
-            "cpu": dict(
-                num_envs=32,
-                unroll_length=16,
-                minibatch_size=256,
-                actor_updates=8,
-                critic_updates=8,
-                actor_lr=3e-4,
-                critic_lr=1e-3,
-                batch_norm=False,
-                total_steps=400_000,
-            ),
+            "cpu": dict(num_envs=32, unroll_length=16, minibatch_size=256, actor_updates=8, critic_updates=8,
+                        actor_lr=3e-4, critic_lr=1e-3, batch_norm=False, total_steps=400_000),
             # A fresh reset per lane (reset_refresh=1): on a GPU the MJX physics of pd mode dominates
             # a step, the reset pool gained nothing at 4096 lanes (1.13 vs 1.16 M env steps/s on an
             # H200) and took 7 s longer to compile.
-            "fast": dict(
-                num_envs=4096,
-                unroll_length=8,
-                minibatch_size=8192,
-                actor_updates=8,
-                critic_updates=8,
-                actor_lr=1e-3,
-                critic_lr=1e-3,
-                batch_norm=False,
-                total_steps=12_000_000,
-                reset_refresh=1.0,
-            ),
+            "fast": dict(num_envs=4096, unroll_length=8, minibatch_size=8192, actor_updates=8, critic_updates=8,
+                         actor_lr=1e-3, critic_lr=1e-3, batch_norm=False, total_steps=12_000_000, reset_refresh=1.0),
         }
     elif family == "tracking":
         # Table 5.3 and §5.5: 256-unit nets, σ = [0.1, 0.01] (unicycle), RSI + early termination.
@@ -205,50 +181,18 @@ def _ppo_base_preset(name: str, env_name: str, episode_length: int, action_size:
             # reaches 3.5 and the policy collapses (sine 39 / 30 / 2.8); adapt_kl_beta has no floor.
             tuned.update(gamma=0.99, objective="kl")
         base = PPOConfig(
-            actor_lr=1e-4,
-            critic_lr=5e-4,
-            clip_eps=0.2,
-            gamma=0.9,
-            gae_lambda=0.95,
-            sigma=sigma,
-            actor_hidden=(256, 256),
-            critic_hidden=(256, 256),
-            batch_norm=False,
-            schedule=tracking_schedule(),
+            actor_lr=1e-4, critic_lr=5e-4, clip_eps=0.2, gamma=0.9, gae_lambda=0.95, sigma=sigma,
+            actor_hidden=(256, 256), critic_hidden=(256, 256), batch_norm=False, schedule=tracking_schedule(),
         )
         presets = {
-            "thesis": dict(
-                num_envs=4,
-                unroll_length=16,
-                minibatch_size=32,
-                actor_updates=8,
-                critic_updates=8,
-                total_steps=3000 * episode_length,
-            ),
+            "thesis": dict(num_envs=4, unroll_length=16, minibatch_size=32, actor_updates=8, critic_updates=8,
+                           total_steps=3000 * episode_length),
             # A learned σ (from a wider start on the turn rate) and normalised observations tracked
             # 2-3x more precisely than the thesis's fixed σ in 2 M steps on the sine.
-            "cpu": dict(
-                num_envs=32,
-                unroll_length=16,
-                minibatch_size=256,
-                actor_updates=8,
-                critic_updates=8,
-                actor_lr=3e-4,
-                critic_lr=1e-3,
-                total_steps=3_000_000,
-                **tuned,
-            ),
-            "fast": dict(
-                num_envs=4096,
-                unroll_length=16,
-                minibatch_size=16384,
-                actor_updates=8,
-                critic_updates=8,
-                actor_lr=1e-3,
-                critic_lr=1e-3,
-                total_steps=30_000_000,
-                **tuned,
-            ),
+            "cpu": dict(num_envs=32, unroll_length=16, minibatch_size=256, actor_updates=8, critic_updates=8,
+                        actor_lr=3e-4, critic_lr=1e-3, total_steps=3_000_000, **tuned),
+            "fast": dict(num_envs=4096, unroll_length=16, minibatch_size=16384, actor_updates=8, critic_updates=8,
+                         actor_lr=1e-3, critic_lr=1e-3, total_steps=30_000_000, **tuned),
         }
         if unicycle:
             # 1 M steps (about 2 min on a 2-core CPU): past that, with lr 3e-4, the learned σ has
@@ -256,36 +200,15 @@ def _ppo_base_preset(name: str, env_name: str, episode_length: int, action_size:
             # (ellipse 2.2 / 3.6 / 3.5 at 1 M, 7.4 / 13.6 / 4.3 at 2 M, one seed).
             presets["cpu"]["total_steps"] = 1_000_000
     else:
-        base = PPOConfig(
-            sigma=(0.5,) * action_size,
-            actor_hidden=(64, 64),
-            critic_hidden=(64, 64),
-            batch_norm=False,
-            gamma=0.99,
-            normalize_obs=True,
-            actor_lr=3e-4,
-            critic_lr=3e-4,
-        )
+        base = PPOConfig(sigma=(0.5,) * action_size, actor_hidden=(64, 64), critic_hidden=(64, 64), batch_norm=False,
+                         gamma=0.99, normalize_obs=True, actor_lr=3e-4, critic_lr=3e-4)
         presets = {
-            "thesis": dict(
-                num_envs=4, unroll_length=8, minibatch_size=32, actor_updates=5, critic_updates=5, total_steps=200_000
-            ),
-            "cpu": dict(
-                num_envs=32,
-                unroll_length=16,
-                minibatch_size=256,
-                actor_updates=8,
-                critic_updates=8,
-                total_steps=500_000,
-            ),
-            "fast": dict(
-                num_envs=2048,
-                unroll_length=16,
-                minibatch_size=8192,
-                actor_updates=4,
-                critic_updates=4,
-                total_steps=10_000_000,
-            ),
+            "thesis": dict(num_envs=4, unroll_length=8, minibatch_size=32, actor_updates=5, critic_updates=5,
+                           total_steps=200_000),
+            "cpu": dict(num_envs=32, unroll_length=16, minibatch_size=256, actor_updates=8, critic_updates=8,
+                        total_steps=500_000),
+            "fast": dict(num_envs=2048, unroll_length=16, minibatch_size=8192, actor_updates=4, critic_updates=4,
+                         total_steps=10_000_000),
         }
     return base.replace(**presets[name]), env_overrides
 
@@ -308,14 +231,8 @@ def a2c_preset(
     cls = A3CConfig if asynchronous else A2CConfig
     if family == "arm":
         base = cls(
-            actor_lr=1e-4,
-            critic_lr=2e-4,
-            entropy_coef=0.01,
-            gamma=0.9,
-            sigma=(0.8, 0.8, 0.1),
-            actor_hidden=(200, 200),
-            critic_hidden=(200, 200),
-            batch_norm=True,
+            actor_lr=1e-4, critic_lr=2e-4, entropy_coef=0.01, gamma=0.9, sigma=(0.8, 0.8, 0.1),
+            actor_hidden=(200, 200), critic_hidden=(200, 200), batch_norm=True,
         )
         presets = {
             "thesis": dict(num_envs=4, unroll_length=8, total_steps=2000 * episode_length),
@@ -323,42 +240,18 @@ def a2c_preset(
             # (its batch statistics in training and moving averages in acting disagree and the acting
             # policy saturates), BN off 0 % (the ±10 goal/region terms drown the progress signal)
             # until the advantages are standardised: 99 %; a linear lr decay steadies the end.
-            "cpu": dict(
-                num_envs=32,
-                unroll_length=8,
-                actor_lr=1e-3,
-                critic_lr=1e-3,
-                batch_norm=False,
-                normalize_advantages=True,
-                lr_schedule="linear",
-                total_steps=400_000,
-            ),
-            "fast": dict(
-                num_envs=4096,
-                unroll_length=8,
-                actor_lr=1e-3,
-                critic_lr=1e-3,
-                batch_norm=False,
-                normalize_advantages=True,
-                lr_schedule="linear",
-                total_steps=100_000_000,
-            ),
+            "cpu": dict(num_envs=32, unroll_length=8, actor_lr=1e-3, critic_lr=1e-3, batch_norm=False,
+                        normalize_advantages=True, lr_schedule="linear", total_steps=400_000),
+            "fast": dict(num_envs=4096, unroll_length=8, actor_lr=1e-3, critic_lr=1e-3, batch_norm=False,
+                         normalize_advantages=True, lr_schedule="linear", total_steps=100_000_000),
         }
         if asynchronous:
             # A3C: 4 asynchronous workers as in the thesis, each of 8 (cpu) or 1024 (fast) lanes.
             presets["cpu"]["lanes_per_worker"] = 8
             presets["fast"]["lanes_per_worker"] = 1024
     else:
-        base = cls(
-            sigma=(0.5,) * action_size,
-            actor_hidden=(64, 64),
-            critic_hidden=(64, 64),
-            batch_norm=False,
-            gamma=0.99,
-            actor_lr=3e-4,
-            critic_lr=3e-4,
-            entropy_coef=0.0,
-        )
+        base = cls(sigma=(0.5,) * action_size, actor_hidden=(64, 64), critic_hidden=(64, 64), batch_norm=False,
+                   gamma=0.99, actor_lr=3e-4, critic_lr=3e-4, entropy_coef=0.0)
         presets = {
             "thesis": dict(num_envs=4, unroll_length=8, total_steps=200_000),
             "cpu": dict(num_envs=32, unroll_length=16, total_steps=500_000),
@@ -403,58 +296,25 @@ def ddpg_preset(
     if family == "arm":
         sparse = reward == "sparse"
         base = DDPGConfig(
-            schedule="episodes",
-            epochs=200 if sparse else 100,
-            cycles_per_epoch=50,
-            num_envs=16,
-            updates_per_cycle=40,
-            batch_size=128,
-            buffer_size=1_000_000,
-            actor_lr=1e-3,
-            critic_lr=1e-3,
-            tau=0.05,
-            gamma=0.9,
-            alpha=0.6,
-            beta0=0.4,
-            beta_increment=0.001,
-            actor_hidden=(100, 100, 100),
-            critic_hidden=(100, 100, 100),
-            noise="gaussian",
-            noise_scale=(0.2,),
-            target_clip=(-10.0, 0.0) if sparse else (),
-            failure_value=-10.0 if sparse else 0.0,
+            schedule="episodes", epochs=200 if sparse else 100, cycles_per_epoch=50, num_envs=16,
+            updates_per_cycle=40, batch_size=128, buffer_size=1_000_000, actor_lr=1e-3, critic_lr=1e-3, tau=0.05,
+            gamma=0.9, alpha=0.6, beta0=0.4, beta_increment=0.001, actor_hidden=(100, 100, 100),
+            critic_hidden=(100, 100, 100), noise="gaussian", noise_scale=(0.2,),
+            target_clip=(-10.0, 0.0) if sparse else (), failure_value=-10.0 if sparse else 0.0,
         )
         presets = {
             "thesis": {},
             "cpu": dict(epochs=20 if sparse else 10),
-            "fast": dict(
-                epochs=20 if sparse else 10, cycles_per_epoch=10, num_envs=1024, updates_per_cycle=400, batch_size=1024
-            ),
+            "fast": dict(epochs=20 if sparse else 10, cycles_per_epoch=10, num_envs=1024, updates_per_cycle=400,
+                         batch_size=1024),
         }
     elif family == "tracking":
         base = DDPGConfig(
-            schedule="steps",
-            total_steps=1000 * episode_length,
-            num_envs=1,
-            unroll_length=1,
-            updates_per_iteration=1,
-            learning_starts=5000,
-            batch_size=32,
-            buffer_size=50_000,
-            actor_lr=1e-4,
-            critic_lr=1e-4,
-            tau=0.01,
-            gamma=0.9,
-            per=True,
-            alpha=0.6,
-            beta0=0.4,
-            beta_increment=0.001,
-            actor_hidden=(300, 100),
-            critic_hidden=(300, 100),
-            noise="ou",
-            noise_scale=(0.2,),
-            noise_reversion=(0.15,),
-            noise_mean=(0.0,),
+            schedule="steps", total_steps=1000 * episode_length, num_envs=1, unroll_length=1,
+            updates_per_iteration=1, learning_starts=5000, batch_size=32, buffer_size=50_000, actor_lr=1e-4,
+            critic_lr=1e-4, tau=0.01, gamma=0.9, per=True, alpha=0.6, beta0=0.4, beta_increment=0.001,
+            actor_hidden=(300, 100), critic_hidden=(300, 100), noise="ou", noise_scale=(0.2,),
+            noise_reversion=(0.15,), noise_mean=(0.0,),
         )
         # cpu and fast: normalised observations; γ 0.99 with the reward as a cost (r − 1) and the end
         # of the reference bootstrapped (only early termination ends an episode, valued −1/(1−γ));
@@ -468,40 +328,16 @@ def ddpg_preset(
         presets = {
             "thesis": {},
             "cpu": dict(num_envs=4, unroll_length=8, updates_per_iteration=32, **learning),
-            "fast": dict(
-                num_envs=256,
-                unroll_length=4,
-                updates_per_iteration=32,
-                batch_size=256,
-                buffer_size=1_000_000,
-                total_steps=20_000 * episode_length,
-                **learning,
-            ),
+            "fast": dict(num_envs=256, unroll_length=4, updates_per_iteration=32, batch_size=256,
+                         buffer_size=1_000_000, total_steps=20_000 * episode_length, **learning),
         }
     else:
-        base = DDPGConfig(
-            schedule="steps",
-            total_steps=200_000,
-            num_envs=4,
-            unroll_length=8,
-            updates_per_iteration=8,
-            learning_starts=1000,
-            batch_size=128,
-            buffer_size=200_000,
-            actor_lr=1e-3,
-            critic_lr=1e-3,
-            tau=0.005,
-            gamma=0.99,
-            actor_hidden=(256, 256),
-            critic_hidden=(256, 256),
-            noise="gaussian",
-            noise_scale=(0.1,),
-        )
-        presets = {
-            "thesis": {},
-            "cpu": {},
-            "fast": dict(num_envs=256, updates_per_iteration=64, batch_size=1024, total_steps=5_000_000),
-        }
+        base = DDPGConfig(schedule="steps", total_steps=200_000, num_envs=4, unroll_length=8, updates_per_iteration=8,
+                          learning_starts=1000, batch_size=128, buffer_size=200_000, actor_lr=1e-3, critic_lr=1e-3,
+                          tau=0.005, gamma=0.99, actor_hidden=(256, 256), critic_hidden=(256, 256), noise="gaussian",
+                          noise_scale=(0.1,))
+        presets = {"thesis": {}, "cpu": {},
+                   "fast": dict(num_envs=256, updates_per_iteration=64, batch_size=1024, total_steps=5_000_000)}
     config = base.replace(**presets[name])
     return distribute(config, name) if distributed else config
 
@@ -519,13 +355,8 @@ def distribute(config: DDPGConfig, name: str) -> DDPGConfig:
     thesis's tracking row: each of the 8 workers runs the 1000 episodes).
     """
     workers = 8 if name == "fast" else 4
-    changes: dict = dict(
-        distributed=True,
-        sync_workers=workers,
-        collect_workers=workers,
-        fetch_every=5,
-        collect_lanes=max(1, config.num_envs // workers),
-    )
+    changes: dict = dict(distributed=True, sync_workers=workers, collect_workers=workers, fetch_every=5,
+                         collect_lanes=max(1, config.num_envs // workers))
     if name == "fast":
         changes.update(batch_size=max(1, config.batch_size // workers), buffer_size=max(config.buffer_size, 1_000_000))
     else:

@@ -24,7 +24,7 @@ from jaxrl_robot.evaluation import run_test_episodes
 from jaxrl_robot.recurrent import table_lookup, table_update, unroll
 from jaxrl_robot.types import RecurrentPolicy
 from train.common import evaluate
-from train.presets import ppo_preset
+from train.presets import ppo_env_overrides, ppo_preset
 
 
 @pytest.fixture(scope="module")
@@ -254,3 +254,5 @@ def test_presets_of_the_variants_are_valid_and_follow_the_thesis(name):
     two = ppo_preset(name, "unicycle", 314, 2, pretrain="action-search")[0].validate()
     assert (two.pretrain, two.pretrain_episodes, two.pretrain_candidates) == ("action-search", 200, 200)
     assert two.total_steps == 200 * 314 + 2 * mlp.total_steps // 3
+    # the unicycle trains with a sharper position term except under the thesis preset (Eq. 3.23 as is)
+    assert ppo_env_overrides(name, "unicycle") == ({} if name == "thesis" else {"a_p": 100.0})
