@@ -1,11 +1,15 @@
 """The sharded path: the same lanes on 4 (fake CPU) devices train like on one device.
 
-Both lane-map implementations of ``jaxrl_robot.parallel`` (``shard_map`` and ``vmap``) are run.
+Both lane-map implementations of ``jaxrl_robot.parallel`` (``shard_map`` and ``vmap``) are run for the
+feed-forward policy; the default one for the recurrent policy (its start-state table sums over every
+device's lanes).
 """
 
 import subprocess
 import sys
 import textwrap
+
+import pytest
 
 from tests.subproc import ROOT, cpu_env
 
@@ -53,9 +57,54 @@ SCRIPT = textwrap.dedent(
 )
 
 
-def test_four_fake_devices_match_one_device():
+RECURRENT = textwrap.dedent(
+    """
+    import jax, jax.numpy as jnp, numpy as np
+    from jaxrl_robot import parallel
+    from jaxrl_robot.agents.ppo import make_trainer
+    from tests.agents.test_ppo import TOY, Line
+
+    class Clock(Line):
+        # Line with a reference step: episodes start at a random k in [0, 8) and count up.
+        max_steps = 8
+
+        def reset(self, rng, params=None):
+            state = super().reset(rng, params)
+            k = jax.random.randint(jax.random.fold_in(rng, 1), (), 0, self.max_steps)
+            return state.replace(info={**state.info, "k": k})
+
+        def step(self, state, action):
+            nxt = super().step(state, action)
+            return nxt.replace(info={**nxt.info, "k": jnp.minimum(state.info["k"] + 1, self.max_steps)})
+
+    cfg = TOY.replace(num_envs=8, unroll_length=8, minibatch_size=32, schedule=(), objective="clip", reset_group=2,
+                      policy="lstm", seq_length=4, lstm_size=8, batch_norm=False, lstm_start="table")
+    out = {}
+    for name, n in ((1, 1), ("vmap", 4)):  # the lane map several devices use by default
+        trainer = make_trainer(cfg, Clock(), mesh=parallel.lane_mesh(n), iterations_per_update=2)
+        state = jax.jit(trainer.init)(jax.random.PRNGKey(0))
+        update = jax.jit(trainer.update)
+        for _ in range(2):
+            state, metrics = update(state)
+        out[name] = jax.device_get((state, metrics))
+    s1, m1 = out[1]
+    assert np.abs(s1.start_table["actor"][1][1:]).max() > 1e-3  # the table was filled
+    for name in ("vmap",):
+        s4, m4 = out[name]
+        jax.tree.map(lambda a, b: np.testing.assert_allclose(a, b, atol=1e-5), s1.start_table, s4.start_table)
+        jax.tree.map(lambda a, b: np.testing.assert_allclose(a, b, atol=1e-5), s1.memory, s4.memory)
+        jax.tree.map(lambda a, b: np.testing.assert_allclose(a, b, atol=1e-5), s1.actor_params, s4.actor_params)
+        for k in ("critic_loss", "actor_loss", "kl", "reward"):
+            np.testing.assert_allclose(m1[k], m4[k], rtol=1e-4, atol=1e-6, err_msg=f"{name} {k}")
+    print("OK")
+    """
+)
+
+
+@pytest.mark.parametrize("script", [SCRIPT, RECURRENT], ids=["mlp", "lstm"])
+def test_four_fake_devices_match_one_device(script):
     proc = subprocess.run(
-        [sys.executable, "-c", SCRIPT], cwd=ROOT, env=cpu_env(devices=4), capture_output=True, text=True, timeout=600
+        [sys.executable, "-c", script], cwd=ROOT, env=cpu_env(devices=4), capture_output=True, text=True, timeout=600
     )
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     assert "OK" in proc.stdout

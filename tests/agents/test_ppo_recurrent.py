@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from envs_mjx import make as make_env
+from envs_mjx import tracking
 from envs_mjx.base import wrap_for_training
 from envs_mjx.config import ConfigError
 from jaxrl_robot.acting import rollout_with_memory
@@ -220,27 +221,30 @@ def test_lstm_checkpoint_continues_exactly(lstm, tmp_path):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
-def test_action_search_pretraining_outlearns_ppo_alone_on_the_same_budget(unicycle):
-    """8 episodes of pre-training (10 iterations, 2 560 steps) then PPO: at 5 120 steps the policy earns more per step
-    than PPO from scratch, and the searched actions beat the policy's own less often as it learns."""
-    base = PPOConfig(
+def test_action_search_pretraining_teaches_the_actor_to_track(unicycle):
+    """8 episodes of pre-training (10 iterations, 2 560 steps), then 10 iterations of PPO. The policy
+    earns > 0.8 per step while still pre-training (PPO alone on this config: 0.24 in its first 10
+    iterations, 0.31 in the next 10) and its test episode from t = 0 tracks closer than the untrained
+    one; the searched actions beat the policy's own in most states at first."""
+    config = PPOConfig(
         num_envs=16, unroll_length=16, minibatch_size=128, total_steps=16 * 16 * 20, sigma=(0.1, 0.05),
         learn_std=True, normalize_obs=True, objective="kl", gamma=0.99, batch_norm=False,
         actor_hidden=(64, 64), critic_hidden=(64, 64), actor_lr=3e-4, critic_lr=1e-3,
-        pretrain_episodes=8, pretrain_candidates=50,
+        pretrain="action-search", pretrain_episodes=8, pretrain_candidates=50,
     )  # fmt: skip
-    rewards = {}
-    for pretrain in ("none", "action-search"):
-        trainer = make_trainer(base.replace(pretrain=pretrain), unicycle, iterations_per_update=10)
-        state = jax.jit(trainer.init)(jax.random.PRNGKey(2))
-        update = jax.jit(trainer.update)
-        state, first = update(state)
-        state, second = update(state)
-        rewards[pretrain] = float(second["reward"])
-        if pretrain != "none":
-            assert float(first["pretraining"]) == 1.0 and float(second["pretraining"]) == 0.0
-            assert float(first["search_better"]) > 0.5
-    assert rewards["action-search"] > 0.85 and rewards["none"] < 0.6, rewards
+    trainer = make_trainer(config, unicycle, iterations_per_update=10)
+    test = jax.jit(lambda state: tracking.rollout(unicycle, trainer.policy(state))["sum_abs_error"])
+    state = jax.jit(trainer.init)(jax.random.PRNGKey(2))
+    untrained = np.asarray(test(state))
+    update = jax.jit(trainer.update)
+    state, first = update(state)
+    state, second = update(state)
+    assert float(first["pretraining"]) == 1.0 and float(second["pretraining"]) == 0.0
+    assert float(first["search_better"]) > 0.5 and float(second["search_better"]) == 0.0
+    assert float(first["reward"]) > 0.8 and float(second["reward"]) > 0.8, (first["reward"], second["reward"])
+    trained = np.asarray(test(state))
+    # from t = 0 over 314 steps (seed 2: x / y / θ 4872 / 419 / 114 untrained, 1881 / 216 / 15 after)
+    assert trained.sum() < 0.5 * untrained.sum() and trained[2] < 0.25 * untrained[2], (trained, untrained)
 
 
 @pytest.mark.parametrize("name", ["thesis", "cpu", "fast"])
