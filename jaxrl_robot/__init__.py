@@ -6,7 +6,8 @@ replay buffers and evaluation helpers, designed to be imported into other JAX co
 
 __version__ = "0.1.0"
 
-from jaxrl_robot import noise, replay  # noqa: E402
+import envs_mjx  # noqa: E402, F401  (first: it imports MJX quietly, before brax does)
+from jaxrl_robot import noise, recurrent, replay  # noqa: E402
 from jaxrl_robot.agents import a2c, ddpg, ppo  # noqa: E402
 from jaxrl_robot.agents.a2c import A2CConfig, A3CConfig  # noqa: E402
 from jaxrl_robot.agents.ddpg import DDPGConfig  # noqa: E402
@@ -27,7 +28,7 @@ from jaxrl_robot.networks import (  # noqa: E402
 from jaxrl_robot.noise import make_gaussian_noise, make_ou_noise  # noqa: E402
 from jaxrl_robot.replay import make_her, make_prioritized_replay, make_uniform_replay  # noqa: E402
 from jaxrl_robot.returns import gae, lambda_returns, n_step_returns, td_errors  # noqa: E402
-from jaxrl_robot.types import RunningStats, Trainer, Transition  # noqa: E402
+from jaxrl_robot.types import RecurrentPolicy, RunningStats, Trainer, Transition  # noqa: E402
 
 __all__ = [
     "__version__",
@@ -48,6 +49,7 @@ __all__ = [
     "normalize",
     "update_running_stats",
     # shared types: a Trainer is what train/common.py drives
+    "RecurrentPolicy",
     "RunningStats",
     "Trainer",
     "Transition",
@@ -73,4 +75,6 @@ __all__ = [
     "noise",
     "make_ou_noise",
     "make_gaussian_noise",
+    # recurrent networks, sequence unrolls and the start-state table (§5.7)
+    "recurrent",
 ]
