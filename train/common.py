@@ -75,7 +75,7 @@ from jaxrl_robot.checkpoint import Checkpointer
 from jaxrl_robot.evaluation import run_test_episodes, summarize_episodes, tracking_error_sums
 from jaxrl_robot.logging import MetricsLogger, read_csv
 from jaxrl_robot.plots import plot_tracking, plot_training_curves
-from jaxrl_robot.types import RecurrentPolicy, Trainer
+from jaxrl_robot.types import Trainer, as_recurrent
 from train.presets import resolve_preset
 
 __all__ = [
@@ -271,8 +271,8 @@ def evaluate(
     if is_tracking_env(env):
         from envs_mjx import tracking
 
-        recurrent = isinstance(policy, RecurrentPolicy)
-        result = tracking.test_episode(env, *((policy.step, None, policy.carry) if recurrent else (policy,)))
+        policy = as_recurrent(policy)
+        result = tracking.test_episode(env, policy.step, carry=policy.carry)
         axes = tuple(result["axis_names"])
         summary = tracking_error_sums(result["abs_error"][: result["steps"]], axes)
         summary["episode_return"] = result["episode_return"]
