@@ -40,7 +40,7 @@ from jax.sharding import Mesh
 
 from jaxrl_robot.agents.ddpg import DDPGConfig
 from train import common
-from train.presets import ddpg_preset
+from train.presets import ddpg_env_overrides, ddpg_preset
 
 __all__ = ["CLI", "Args", "OffPolicyCLI", "OffPolicyOptions", "build", "distributed_flag", "main", "parse"]
 
@@ -68,9 +68,10 @@ class Args(OffPolicyOptions):
 
 
 def env_settings(args: OffPolicyOptions) -> dict[str, Any]:
-    """Env settings from ``--reward``, ``--trajectory`` and ``--env-config KEY=VALUE``."""
+    """Env settings: the preset's (:func:`train.presets.ddpg_env_overrides`), then ``--reward``,
+    ``--trajectory`` and ``--env-config KEY=VALUE``."""
     trajectory = {} if args.trajectory is None else {"trajectory": args.trajectory}
-    return {**trajectory, **common.env_overrides(args)}
+    return {**ddpg_env_overrides(args.preset, args.env), **trajectory, **common.env_overrides(args)}
 
 
 def preset(args: OffPolicyOptions, env: Any, distributed: bool = False) -> DDPGConfig:

@@ -30,6 +30,7 @@ __all__ = [
     "distribute",
     "PPO_PRESETS",
     "ppo_env_overrides",
+    "ddpg_env_overrides",
     "lstm_variant",
     "ppo_preset",
     "resolve_preset",
@@ -265,6 +266,19 @@ def a2c_preset(
 # ---- DDPG ---------------------------------------------------------------------------------
 
 DDPG_PRESETS = ("auto", "thesis", "cpu", "fast")
+
+
+def ddpg_env_overrides(name: str, env_name: str) -> dict:
+    """Env settings a DDPG preset needs (the user's ``--env-config`` goes on top).
+
+    ``unicycle`` under ``cpu`` and ``fast``: the sharper position term ``a_p = 100`` of
+    :func:`ppo_env_overrides`, for the same reason (CPU, sine, seed 0, ``cpu`` preset: x / y / θ
+    sums 7.75 / 5.75 / 2.22 at Eq. 3.23's a_p = 1, 1.43 / 1.13 / 0.83 at a_p = 100;
+    ``benchmarks/results/cpu-2core-ddpg_tracking.md``).  ``thesis`` keeps a_p = 1.
+    """
+    if env_name.split(":")[-1] == "unicycle" and resolve_preset(name) in ("cpu", "fast"):
+        return {"a_p": 100.0}
+    return {}
 
 
 def ddpg_preset(

@@ -1,0 +1,152 @@
+"""What the tracking-error benchmarks (``ppo_tracking``, ``ddpg_tracking``) share.
+
+Each case trains several seeds of one method on one reference and runs every agent's test
+episode from ``t = 0`` (``envs_mjx.tracking.rollout``).  The metric is the thesis's: per axis
+the sum over the test episode of |reference − real| (x, y in m; θ in rad or z in m).  A case
+becomes one dict (:func:`summarise`), a run of cases one results file (:func:`to_markdown`,
+written after every case by :func:`run_cases` so that a cut-short run keeps its rows).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import jax
+import numpy as np
+
+from benchmarks.train_throughput import RESULTS, device_label, write_results
+from train.common import parse_value
+
+GOAL = {  # half of the thesis's best over all its methods, per axis (SPEC.md, Tables 4.3-4.5, 5.4-5.7)
+    "scara": (0.49, 1.97, 1.04),
+    "sine": (1.30, 0.86, 0.47),
+    "ellipse": (0.93, 1.27, 1.68),
+}
+
+
+def pairs(items: Sequence[str]) -> dict[str, Any]:
+    """``["KEY=VALUE", ...]`` -> ``{key: value}`` (values parsed as the command lines do; ``-`` in keys -> ``_``)."""
+    out = {}
+    for item in items:
+        if "=" not in item:
+            raise SystemExit(f"error: {item!r}: expected KEY=VALUE")
+        key, value = item.split("=", 1)
+        out[key.strip().replace("-", "_")] = parse_value(value.strip())
+    return out
+
+
+def add_common_args(p: argparse.ArgumentParser) -> None:
+    """The options every tracking benchmark has: seeds, preset, budget, overrides, label, commit, out."""
+    p.add_argument("--seeds", type=int, default=3)
+    p.add_argument("--seed", type=int, default=0, help="the seeds' keys are split from this one")
+    p.add_argument("--preset", default="auto")
+    p.add_argument("--total-steps", type=int, default=0, help="override the preset's budget (0: keep it)")
+    p.add_argument("--set", nargs="*", default=[], help="trainer config fields FIELD=VALUE")
+    p.add_argument("--env-config", nargs="*", default=[], help="env settings KEY=VALUE")
+    p.add_argument("--label", default="", help="names the variant (results file suffix)")
+    p.add_argument("--commit", default="", help="commit to record (default: git's HEAD)")
+    p.add_argument("--out", default=RESULTS)
+
+
+def train_seeds(train: Callable, test: Callable, keys: jax.Array, vmapped: bool) -> tuple[Any, Any, float, float]:
+    """Compile and run ``train(key) -> (state, metrics)`` for every key, then ``test(state)``.
+
+    ``vmapped``: all keys in one program; otherwise one compiled program run per key.
+    Returns ``(test results [S, ...], metrics [S, ...], compile s, train s)`` (host arrays).
+    """
+    fn = jax.jit(jax.vmap(train) if vmapped else train)
+    t0 = time.perf_counter()
+    compiled = fn.lower(keys if vmapped else keys[0]).compile()
+    compile_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    if vmapped:
+        states, metrics = jax.block_until_ready(compiled(keys))
+        train_s = time.perf_counter() - t0
+        return jax.device_get(jax.jit(jax.vmap(test))(states)), jax.device_get(metrics), compile_s, train_s
+    runs = [jax.block_until_ready(compiled(k)) for k in keys]
+    train_s = time.perf_counter() - t0
+    test = jax.jit(test)
+    stack = lambda trees: jax.tree.map(lambda *xs: np.stack(xs), *trees)  # noqa: E731
+    return stack([jax.device_get(test(s)) for s, _ in runs]), stack([m for _, m in runs]), compile_s, train_s
+
+
+def summarise(result: dict, metrics: dict, reward_key: str, **fields: Any) -> dict[str, Any]:
+    """One case's dict: ``fields`` plus the per-seed sums ``[S, 3]``, their mean and std, test steps
+    and the last chunk's ``metrics[reward_key]`` per seed."""
+    sums = np.asarray(result["sum_abs_error"])
+    return {
+        **fields,
+        "sums": sums.tolist(),
+        "steps": np.asarray(result["steps"]).tolist(),
+        "mean": sums.mean(axis=0).tolist(),
+        "std": sums.std(axis=0).tolist(),
+        "final_reward": np.asarray(metrics[reward_key])[:, -1].tolist(),
+    }
+
+
+def to_markdown(result: dict[str, Any], title: str, intro: str) -> str:
+    """The results file: ``title``, ``intro``, then per case its row (mean ± std, each seed) and the
+    thesis's row for the method where the thesis has one (``r["thesis"]`` None: no row)."""
+    third = result.get("third_axis", "θ")
+    lines = [
+        f"# {title} — {result['device']}",
+        "",
+        f"`{result['command']}` at commit {result['commit']} (jax {result['jax']}, {result['date']}). {intro} "
+        f"Keys split from seed {result['seed']}; per axis the sum over the test episode from t = 0 of "
+        "|error| (x, y m; θ rad or z m), mean ± std over seeds, each seed in brackets; goal: ½ of the "
+        "thesis's best over all its methods. Bold: at or below the goal.",
+        "",
+        f"| reference | method | variant | x | y | {third} | seeds (x / y / {third}) | env steps "
+        "| train s (compile s) |",
+        "|---|---|---|---:|---:|---:|---|---:|---:|",
+    ]
+    for r in result["runs"]:
+        cells = []
+        for axis in range(3):
+            mean, std = r["mean"][axis], r["std"][axis]
+            text = f"{mean:.2f} ± {std:.2f}"
+            cells.append(f"**{text}**" if mean <= r["goal"][axis] else text)
+        per_seed = "; ".join(" / ".join(f"{v:.2f}" for v in s) for s in r["sums"])
+        lines.append(
+            f"| {r['reference']} | {r['method']} | {r['label'] or '-'} | {' | '.join(cells)} | {per_seed} "
+            f"| {r['env_steps'] / 1e6:.3g} M | {r['train_s']:.0f} ({r['compile_s']:.0f}) |"
+        )
+        if r.get("thesis"):
+            t = r["thesis"]
+            lines.append(f"| {r['reference']} | thesis {r['method']} | | {t[0]} | {t[1]} | {t[2]} | | | |")
+    lines.append("")
+    return "\n".join(lines)
+
+
+def run_cases(
+    name: str,
+    args: argparse.Namespace,
+    argv: Sequence[str],
+    cases: Sequence[tuple[str, str]],
+    run_case: Callable[[str, str, argparse.Namespace], dict],
+    markdown: Callable[[dict], str],
+) -> dict[str, Any]:
+    """Run ``run_case(reference, method, args)`` for every case; write ``<device>-<name>[-label]``
+    (json and markdown) under ``args.out`` after each.  Returns the whole result."""
+    git = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
+    result = {
+        "benchmark": name,
+        "device": device_label(),
+        "preset": args.preset,
+        "seed": args.seed,
+        "command": f"python -m benchmarks.{name} " + " ".join(argv),
+        "commit": args.commit or git.stdout.strip() or "unknown",
+        "jax": jax.__version__,
+        "date": time.strftime("%Y-%m-%d"),
+        "runs": [],
+    }
+    stem = os.path.join(args.out, f"{device_label()}-{name}" + (f"-{args.label}" if args.label else ""))
+    for reference, method in cases:
+        result["runs"].append(run_case(reference, method, args))
+        write_results(stem, result, markdown(result))
+    return result
