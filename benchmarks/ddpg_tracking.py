@@ -93,9 +93,9 @@ def run_case(reference: str, method: str, args: argparse.Namespace) -> dict[str,
 
 def to_markdown(result: dict[str, Any]) -> str:
     return tracking_report.to_markdown(
-        result, f"DDPG-family tracking (SCARA: third axis z), `{result['preset']}` preset",
+        result, f"DDPG-family tracking, `{result['preset']}` preset",
         "Seeds vmapped in one program; `ddpg` = `train.ddpg`'s preset, `td3` = `train.td3`'s, "
-        "`distributed` = `train.ddpg --distributed`.",
+        "`distributed` = `train.ddpg --distributed`.", third="θ / z",
     )
 
 

@@ -59,7 +59,8 @@ def child(variant: str, lanes: int, steps: int) -> None:
             return s, jnp.mean(s.reward)
 
         state, r = jax.lax.scan(body, state, None, length=steps)
-        return state.obs, r
+        # the mean reward over all lanes (inside shard_lanes, over every device's lanes)
+        return state.obs, (r if variant == "jit_sharded" else parallel.pmean(r))
 
     keys = jax.random.split(jax.random.PRNGKey(0), lanes)
     if variant == "jit_sharded":

@@ -89,10 +89,10 @@ def summarise(result: dict, metrics: dict, reward_key: str, **fields: Any) -> di
     }
 
 
-def to_markdown(result: dict[str, Any], title: str, intro: str) -> str:
+def to_markdown(result: dict[str, Any], title: str, intro: str, third: str = "θ") -> str:
     """The results file: ``title``, ``intro``, then per case its row (mean ± std, each seed) and the
-    thesis's row for the method where the thesis has one (``r["thesis"]`` None: no row)."""
-    third = result.get("third_axis", "θ")
+    thesis's row for the method where the thesis has one (``r["thesis"]`` None: no row); ``third``
+    names the third axis."""
     lines = [
         f"# {title} — {result['device']}",
         "",
