@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import warnings
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -12,7 +13,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-__all__ = ["plot_staleness", "plot_training_curves", "plot_tracking", "plot_worker_curves"]
+__all__ = ["plot_seed_bands", "plot_staleness", "plot_training_curves", "plot_tracking", "plot_worker_curves"]
 
 _CURVES = (
     ("episode_return", "Episode reward", "episode_reward.png"),
@@ -58,6 +59,45 @@ def plot_training_curves(rows: Sequence[Mapping[str, Any]], out_dir: str) -> lis
         ax.grid(alpha=0.3)
         written.append(_save(fig, out_dir, name))
     return written
+
+
+def plot_seed_bands(
+    curves: Mapping[str, Sequence[Sequence[Mapping[str, Any]]]], key: str, out_dir: str, name: str, title: str
+) -> str | None:
+    """One curve per label: the mean over seeds of column ``key`` against env steps, with the band
+    between the seeds' lowest and highest values.
+
+    Args:
+      curves: ``label -> [metrics rows of one seed, ...]`` (``env_steps`` and ``key`` columns); the
+        seeds' rows are cut to the shortest seed's length.
+      key: the metric to draw (e.g. ``success``, ``episode_return``).
+    Returns:
+      the written path, or None when no label has the column.
+    """
+    fig, ax = plt.subplots(figsize=(7, 4))
+    drawn = 0
+    for label, seeds in curves.items():
+        seeds = [rows for rows in seeds if rows and key in rows[0]]
+        if not seeds:
+            continue
+        n = min(len(rows) for rows in seeds)
+        steps = np.array([float(r["env_steps"]) for r in seeds[0][:n]])
+        y = np.array([[float(r[key]) if r[key] not in ("", None) else np.nan for r in rows[:n]] for rows in seeds])
+        with warnings.catch_warnings():  # chunks without a finished episode are NaN in every seed
+            warnings.simplefilter("ignore", RuntimeWarning)
+            mean, lo, hi = np.nanmean(y, axis=0), np.nanmin(y, axis=0), np.nanmax(y, axis=0)
+        (line,) = ax.plot(steps, mean, label=f"{label} ({len(seeds)} seeds)")
+        ax.fill_between(steps, lo, hi, color=line.get_color(), alpha=0.2)
+        drawn += 1
+    if not drawn:
+        plt.close(fig)
+        return None
+    ax.set_xlabel("environment steps")
+    ax.set_ylabel(key)
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    return _save(fig, out_dir, name)
 
 
 def plot_tracking(

@@ -1,0 +1,417 @@
+"""Every thesis table in one command: each row through its command line, over seeds, beside the thesis.
+
+    python -m benchmarks.thesis                              # every table, 3 seeds, preset auto
+    python -m benchmarks.thesis --tables 3.1 4.1 --seeds 1 --preset cpu
+    python -m benchmarks.thesis --list                       # the rows and their commands
+
+Each row of thesis Tables 3.1, 4.1, 4.3–4.5, 5.1, 5.4–5.7 and 6.2–6.3 is one command line of
+``train/`` (``python -m train.<algo> ...``, run in this process) per seed, with ``--preset``,
+``--seed`` and a run directory of its own under ``--runs``.  Its figures come from the run's own
+evaluation (``eval.json``): success over 100 test episodes for the arm, the per-axis sum of
+|error| over one test episode from ``t = 0`` for tracking.  Tables 7.1–7.3 (the thesis's
+summaries) are drawn from those rows.  Rows whose algorithm or environment does not exist yet
+are listed as **missing** with the reason.
+
+Resumable: a seed whose run directory has ``eval.json`` is done and skipped; a run directory
+without it (a killed run) continues with ``--resume``; rerunning the command finishes the rest
+and rewrites the report.
+
+Report: ``<out>/thesis-<device>-<preset>.md`` (and ``.json``), one section per table — the
+thesis's figure, ours as mean ± std over seeds with the per-seed values, met / not met against
+the goal (arm: ≥ 95 % per row; tracking: ≤ ½ of the thesis's best over its methods per axis;
+driving: ≥ 19 / 20 per road), wall time, commit, device and the exact command — plus figures in
+``<out>/thesis-<device>-<preset>-figures/``: per table the learning curves of its rows (mean
+over seeds, min–max band) and, for tracking rows, seed 0's reference-vs-path and per-axis error
+plots drawn by the run.
+
+``--smoke`` shrinks every row's budget to seconds (checks the plumbing, not the numbers).
+Seeds run one after another (each a command-line run); vmapped seeds for the tracking rows:
+``benchmarks.ppo_tracking`` / ``benchmarks.ddpg_tracking``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import dataclasses
+import glob
+import importlib
+import io
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from benchmarks.tracking_report import GOAL
+from benchmarks.train_throughput import RESULTS, device_label
+from jaxrl_robot import plots
+from jaxrl_robot.logging import read_csv
+
+ARM_GOAL = 95.0
+"""Arm rows: success over 100 test episodes, % (every row)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Row:
+    """One row of a thesis table.
+
+    ``algo``: the ``train.<algo>`` command (None: missing); ``argv``: its flags beyond preset,
+    seed and output; ``thesis``: the thesis's figure (success % for the arm, ``(x, y, θ or z)``
+    sums for tracking); ``reference``: the tracking goal's key (``scara``, ``sine``, ``ellipse``).
+    """
+
+    table: str
+    name: str
+    label: str
+    algo: str | None
+    argv: tuple[str, ...]
+    thesis: Any
+    kind: str
+    reference: str = ""
+    missing: str = ""
+
+    @property
+    def id(self) -> str:
+        return f"{self.table}/{self.name}"
+
+
+ARM = ("--env", "arm7", "--env-config", "mode=kinematic")  # the thesis's arm runs in joint-position mode
+UNICYCLE = {"sine": ("--env", "unicycle", "--env-config", "trajectory=sine"),
+            "ellipse": ("--env", "unicycle", "--env-config", "trajectory=ellipse")}  # fmt: skip
+
+
+def _tracking_rows() -> list[Row]:
+    rows = []
+    thesis = {  # Tables 4.3-4.5 (DDPG, distributed DDPG)
+        "scara": ((2.585, 4.210, 5.389), (0.988, 3.944, 2.081)),
+        "sine": ((6.578, 3.495, 1.471), (2.592, 2.915, 1.242)),
+        "ellipse": ((4.267, 2.533, 5.265), (2.837, 2.919, 3.802)),
+    }
+    table = {"scara": "4.3", "sine": "4.4", "ellipse": "4.5"}
+    for ref, (ddpg, dist) in thesis.items():
+        env = ("--env", "scara") if ref == "scara" else UNICYCLE[ref]
+        rows.append(Row(table[ref], f"{ref}-ddpg", f"DDPG + PER, {ref}", "ddpg", env, ddpg, "tracking", ref))
+        rows.append(Row(table[ref], f"{ref}-distributed", f"Distributed DDPG, {ref}", "ddpg",
+                        (*env, "--distributed"), dist, "tracking", ref))  # fmt: skip
+    ppo = {  # Tables 5.4-5.7 (distributed PPO, two-stage, PPO + LSTM)
+        "sine": ((2.998, 2.961, 1.495), (3.276, 2.293, 1.147), (3.002, 1.717, 0.942)),
+        "ellipse": ((3.906, 3.683, 4.451), (1.857, 3.213, 3.643), (2.374, 2.636, 3.360)),
+    }
+    for ref, (mlp, two, lstm) in ppo.items():
+        env = UNICYCLE[ref]
+        rows += [
+            Row("5.4-5.7", f"{ref}-ppo", f"Distributed PPO, {ref}", "ppo", env, mlp, "tracking", ref),
+            Row("5.4-5.7", f"{ref}-two-stage", f"Two-stage (action-search pre-training + PPO), {ref}", "ppo",
+                (*env, "--pretrain", "action-search"), two, "tracking", ref),
+            Row("5.4-5.7", f"{ref}-lstm", f"Distributed PPO + LSTM, {ref}", "ppo", (*env, "--policy", "lstm"), lstm,
+                "tracking", ref),
+        ]  # fmt: skip
+    return rows
+
+
+ROWS: tuple[Row, ...] = (
+    Row("3.1", "sparse-final", "DDPG, sparse reward, HER final", "ddpg",
+        (*ARM, "--reward", "sparse", "--her", "final"), 79, "arm"),
+    Row("3.1", "sparse-future2", "DDPG, sparse reward, HER future k=2", "ddpg",
+        (*ARM, "--reward", "sparse", "--her", "future", "--her-k", "2"), 78, "arm"),
+    Row("3.1", "sparse-future4", "DDPG, sparse reward, HER future k=4", "ddpg",
+        (*ARM, "--reward", "sparse", "--her", "future", "--her-k", "4"), 81, "arm"),
+    Row("3.1", "shaped-random2", "DDPG, shaped reward, HER random k=2", "ddpg",
+        (*ARM, "--reward", "shaped", "--her", "random", "--her-k", "2"), 87, "arm"),
+    Row("3.1", "shaped-future2", "DDPG, shaped reward, HER future k=2", "ddpg",
+        (*ARM, "--reward", "shaped", "--her", "future", "--her-k", "2"), 56, "arm"),
+    Row("3.1", "shaped-per", "DDPG, shaped reward, no relabelling, PER (no goal in the observation)", "ddpg",
+        ("--env", "arm7", "--env-config", "mode=kinematic", "obs=no_goal", "--reward", "shaped", "--her", "none",
+         "--per"), 9, "arm"),
+    Row("4.1", "a3c-ordinary", "A3C, ordinary reward", "a3c", (*ARM, "--reward", "ordinary"), 76, "arm"),
+    Row("4.1", "a3c-path", "A3C, path reward", "a3c", (*ARM, "--reward", "path"), 84, "arm"),
+    Row("4.1", "a2c-ordinary", "A2C, ordinary reward", "a2c", (*ARM, "--reward", "ordinary"), 79, "arm"),
+    Row("4.1", "a2c-path", "A2C, path reward", "a2c", (*ARM, "--reward", "path"), 88, "arm"),
+    *[r for r in _tracking_rows() if r.table in ("4.3", "4.4", "4.5")],
+    Row("5.1", "ppo-ordinary", "Distributed PPO, ordinary reward", "ppo", (*ARM, "--reward", "ordinary"), 82, "arm"),
+    Row("5.1", "ppo-path", "Distributed PPO, path reward", "ppo", (*ARM, "--reward", "path"), 91, "arm"),
+    *[r for r in _tracking_rows() if r.table == "5.4-5.7"],
+    *[Row("6.2-6.3", f"{algo}-{road.replace(' ', '-')}", f"{algo.upper()} with imitation pre-training, {road}",
+          None, (), thesis, "driving", missing="DDPG/TD3 pre-trained by imitation of the racecar's expert and the "
+          "20-lap road evaluation are not built yet (issue 14)")
+      for algo, results in (("ddpg", ((18, 2, 0, 2.65), (16, 2, 2, 2.55), (17, 2, 1, 2.6), (18, 1, 1, 2.85))),
+                            ("td3", ((18, 2, 0, 2.6), (17, 2, 1, 2.65), (18, 1, 1, 2.9), (17, 2, 1, 2.7))))
+      for road, thesis in zip(("training road", "test road 1", "test road 2", "test road 3"), results, strict=True)],
+)  # fmt: skip
+"""Every row of the thesis's result tables (SPEC §R)."""
+
+TABLES = tuple(dict.fromkeys(r.table for r in ROWS))
+TITLES = {
+    "3.1": "Table 3.1 — DDPG with HER / PER on the arm (success over 100 test goals, %)",
+    "4.1": "Table 4.1 — A3C and A2C on the arm (success, %)",
+    "4.3": "Table 4.3 — SCARA tracking, DDPG and distributed DDPG (sum of |error|: x, y, z in m)",
+    "4.4": "Table 4.4 — unicycle sine, DDPG and distributed DDPG (sum of |error|: x, y m; θ rad)",
+    "4.5": "Table 4.5 — unicycle ellipse, DDPG and distributed DDPG (sum of |error|)",
+    "5.1": "Table 5.1 — distributed PPO on the arm (success, %)",
+    "5.4-5.7": "Tables 5.4–5.7 — unicycle, PPO, two-stage and PPO + LSTM (sum of |error|)",
+    "6.2-6.3": "Tables 6.2–6.3 — racing with opponents, 20 laps per road (success / collision / out / overtakes)",
+}
+
+SMOKE = {  # budgets of seconds: the plumbing, not the numbers
+    ("ddpg", "arm"): ("--epochs", "1", "--cycles-per-epoch", "2", "--num-envs", "4", "--updates-per-cycle", "2",
+                      "--batch-size", "16", "--actor-hidden", "16", "--critic-hidden", "16", "--eval-episodes", "4"),
+    ("ddpg", "tracking"): ("--total-steps", "256", "--learning-starts", "64", "--batch-size", "16",
+                           "--actor-hidden", "16", "--critic-hidden", "16", "--chunks", "2"),
+    ("a2c", "arm"): ("--total-steps", "256", "--chunks", "2", "--eval-episodes", "4"),
+    ("ppo", "arm"): ("--total-steps", "1024", "--chunks", "2", "--eval-episodes", "4"),
+    ("ppo", "tracking"): ("--total-steps", "1024", "--chunks", "2"),
+}  # fmt: skip
+
+
+def smoke_args(row: Row) -> tuple[str, ...]:
+    return SMOKE[("a2c" if row.algo == "a3c" else row.algo, row.kind)]
+
+
+def command(row: Row, preset: str, seed: int, smoke: bool) -> list[str]:
+    """The row's ``train.<algo>`` arguments for one seed (output directory apart)."""
+    return [*row.argv, "--preset", preset, "--seed", str(seed), *(smoke_args(row) if smoke else ())]
+
+
+def run_dir_of(runs: str, row: Row, seed: int) -> str | None:
+    """The run directory of ``row`` and ``seed`` under ``runs`` (None before its first start)."""
+    found = sorted(glob.glob(os.path.join(runs, row.table, row.name, f"seed{seed}", "*", "config.json")))
+    return os.path.dirname(found[-1]) if found else None
+
+
+def run_seed(row: Row, seed: int, args: argparse.Namespace) -> dict[str, Any]:
+    """Run (or continue, or skip) one seed of ``row``; its evaluation and wall time."""
+    main = importlib.import_module(f"train.{row.algo}").main
+    out = os.path.join(args.runs, row.table, row.name, f"seed{seed}")
+    existing = run_dir_of(args.runs, row, seed)
+    if existing and os.path.exists(os.path.join(existing, "eval.json")):
+        return {**json.load(open(os.path.join(existing, "eval.json"))), "run_dir": existing, "skipped": True}
+    argv = ["--resume", existing] if existing else [*command(row, args.preset, seed, args.smoke), "--out", out]
+    t0 = time.perf_counter()
+    sink = io.StringIO()
+    with contextlib.redirect_stdout(sink) if args.quiet else contextlib.nullcontext():
+        try:
+            code = main(argv)
+        except SystemExit as e:  # a command line that does not parse
+            code = e.code
+    wall = time.perf_counter() - t0
+    run_dir = run_dir_of(args.runs, row, seed)
+    if code != 0 or run_dir is None or not os.path.exists(os.path.join(run_dir, "eval.json")):
+        return {"error": f"exit code {code}", "run_dir": run_dir, "wall_s": wall}
+    return {**json.load(open(os.path.join(run_dir, "eval.json"))), "run_dir": run_dir, "process_s": wall}
+
+
+def axis_keys(ev: dict) -> tuple[str, str, str]:
+    return ("x", "y", "z") if "z" in ev else ("x", "y", "theta")
+
+
+def row_figure(row: Row, seeds: list[dict]) -> dict[str, Any]:
+    """Mean ± std over the seeds that finished, the per-seed values, and met / not met."""
+    done = [s for s in seeds if "error" not in s]
+    out: dict[str, Any] = {"seeds_done": len(done), "seeds": len(seeds)}
+    if not done:
+        return out
+    if row.kind == "arm":
+        vals = np.array([[100.0 * s["success_rate"]] for s in done])
+        goal = np.array([ARM_GOAL])
+        met = vals.mean(0) >= goal
+    else:
+        vals = np.array([[s[k] for k in axis_keys(s)] for s in done])
+        goal = np.array(GOAL[row.reference])
+        met = vals.mean(0) <= goal
+    out.update(values=vals.tolist(), mean=vals.mean(0).tolist(), std=vals.std(0).tolist(), goal=goal.tolist(),
+               met=met.tolist(), wall_s=float(sum(s.get("wall_s", s.get("process_s", 0.0)) for s in done)))  # fmt: skip
+    return out
+
+
+def _cell(mean: float, std: float, met: bool, digits: int) -> str:
+    text = f"{mean:.{digits}f} ± {std:.{digits}f}"
+    return f"**{text}**" if met else text
+
+
+def table_markdown(table: str, results: list[dict], fig_dir: str, rel: str) -> list[str]:
+    """The section of one table: rows, thesis figures, goals, per-seed values; its figures."""
+    lines = [f"## {TITLES[table]}", ""]
+    rows = [r for r in results if r["row"]["table"] == table]
+    kind = rows[0]["row"]["kind"]
+    if kind == "arm":
+        lines += ["| row | thesis | ours (mean ± std) | seeds | met (≥ 95) | wall s | command |",
+                  "|---|---:|---:|---|---|---:|---|"]
+    elif kind == "tracking":
+        lines += ["| row | thesis x / y / θ-z | ours x | ours y | ours θ-z | seeds (x / y / θ-z) | goal | met | wall s "
+                  "| command |", "|---|---|---:|---:|---:|---|---|---|---:|---|"]  # fmt: skip
+    else:
+        lines += ["| row | thesis | ours | status |", "|---|---|---|---|"]
+    curves: dict[str, list] = {}
+    for r in rows:
+        row, fig = r["row"], r["figure"]
+        cmd = f"`python -m train.{row['algo']} {' '.join(r['command'])}`" if row["algo"] else ""
+        if row["missing"]:
+            lines.append(f"| {row['label']} | {row['thesis']} | **missing** | {row['missing']} |")
+            continue
+        if not fig.get("seeds_done"):
+            errors = "; ".join(s.get("error", "") for s in r["seeds"])
+            lines.append(f"| {row['label']} | {row['thesis']} | **not run** ({errors or 'no seed finished'}) |"
+                         + " |" * (6 if kind == "arm" else 8))  # fmt: skip
+            continue
+        per_seed = "; ".join(" / ".join(f"{v:.2f}" if kind == "tracking" else f"{v:.0f}" for v in s)
+                             for s in fig["values"])  # fmt: skip
+        seeds = f"{per_seed} ({fig['seeds_done']}/{fig['seeds']})"
+        if kind == "arm":
+            cell = _cell(fig["mean"][0], fig["std"][0], fig["met"][0], 1)
+            lines.append(f"| {row['label']} | {row['thesis']} | {cell} | {seeds} | {'yes' if fig['met'][0] else 'no'} "
+                         f"| {fig['wall_s']:.0f} | {cmd} |")  # fmt: skip
+        else:
+            cells = " | ".join(_cell(m, s, ok, 2) for m, s, ok in zip(fig["mean"], fig["std"], fig["met"], strict=True))
+            goal = " / ".join(f"{g:.2f}" for g in fig["goal"])
+            met = f"{sum(fig['met'])}/3"
+            thesis = " / ".join(str(t) for t in row["thesis"])
+            lines.append(f"| {row['label']} | {thesis} | {cells} | {seeds} | {goal} | {met} | {fig['wall_s']:.0f} "
+                         f"| {cmd} |")  # fmt: skip
+        csvs = [os.path.join(s["run_dir"], "metrics.csv") for s in r["seeds"] if "error" not in s]
+        curves[row["name"]] = [read_csv(c) for c in csvs if os.path.exists(c)]
+        if kind == "tracking" and r["seeds"] and "error" not in r["seeds"][0]:
+            for name in ("tracking_path.png", "tracking_errors.png"):
+                src = os.path.join(r["seeds"][0]["run_dir"], name)
+                if os.path.exists(src):
+                    dst = f"{table}-{row['name']}-{name}"
+                    shutil.copy(src, os.path.join(fig_dir, dst))
+                    lines.append(f"| ![{row['label']}: {name[:-4]}, seed 0]({rel}/{dst}) |" + " |" * 9)
+    key = "success" if kind == "arm" else "episode_return"
+    if curves:
+        path = plots.plot_seed_bands(curves, key, fig_dir, f"table-{table}-curves.png", TITLES[table].split(" — ")[0])
+        if path:
+            lines += ["", f"![learning curves, {TITLES[table].split(' — ')[0]}]({rel}/{os.path.basename(path)})"]
+    lines.append("")
+    return lines
+
+
+def summary_markdown(results: list[dict]) -> list[str]:
+    """Tables 7.1-7.3 (the thesis's summaries): the best of ours per arm method and per tracking axis."""
+    lines = ["## Tables 7.1–7.3 — summaries", "", "| summary | thesis best | ours best (row) | goal | met |",
+             "|---|---:|---:|---:|---|"]  # fmt: skip
+    arm = [r for r in results if r["row"]["kind"] == "arm" and r["figure"].get("seeds_done")]
+    if arm:
+        best = max(arm, key=lambda r: r["figure"]["mean"][0])
+        worst = min(arm, key=lambda r: r["figure"]["mean"][0])
+        thesis = max(r["row"]["thesis"] for r in results if r["row"]["kind"] == "arm")
+        lines.append(f"| 7.1 arm, best row | {thesis} | {best['figure']['mean'][0]:.1f} ({best['row']['label']}) "
+                     f"| ≥ {ARM_GOAL:.0f} every row | lowest row {worst['figure']['mean'][0]:.1f} |")  # fmt: skip
+    for ref in ("scara", "sine", "ellipse"):
+        rs = [r for r in results if r["row"]["reference"] == ref]
+        if not rs:
+            continue
+        done = [r for r in rs if r["figure"].get("seeds_done")]
+        for axis in range(3):
+            thesis = min(r["row"]["thesis"][axis] for r in rs)
+            if not done:
+                lines.append(f"| 7.2-7.3 {ref} axis {axis + 1} | {thesis} | not run | {GOAL[ref][axis]} | |")
+                continue
+            best = min(done, key=lambda r: r["figure"]["mean"][axis])
+            value = best["figure"]["mean"][axis]
+            lines.append(f"| 7.2-7.3 {ref}, {'xyz'[axis] if ref == 'scara' else ('x', 'y', 'θ')[axis]} | {thesis} "
+                         f"| {value:.2f} ({best['row']['label']}) | {GOAL[ref][axis]} "
+                         f"| {'yes' if value <= GOAL[ref][axis] else 'no'} |")  # fmt: skip
+    return [*lines, ""]
+
+
+def report(results: list[dict], meta: dict[str, Any], stem: str) -> str:
+    """Write ``stem.md`` / ``stem.json`` (figures in ``stem-figures/``); returns the markdown."""
+    fig_dir = stem + "-figures"
+    os.makedirs(fig_dir, exist_ok=True)
+    rel = os.path.basename(fig_dir)
+    lines = [
+        f"# The thesis's tables with jaxrl-robot — {meta['device']}, `{meta['preset']}` preset",
+        "",
+        f"`{meta['command']}` at commit {meta['commit']} (jax {meta['jax']}, {meta['date']}); {meta['seeds']} "
+        f"seed(s) per row, each one command-line run; the rows' runs took {meta['runs_wall_s']:.0f} s in all "
+        f"(this invocation {meta['wall_s']:.0f} s)"
+        + (" (smoke budgets: not results)" if meta["smoke"] else "") + ". Bold: at the goal (arm ≥ 95 % per row; "
+        "tracking ≤ ½ of the thesis's best over all its methods, per axis).",
+        "",
+    ]  # fmt: skip
+    for table in dict.fromkeys(r["row"]["table"] for r in results):
+        lines += table_markdown(table, results, fig_dir, rel)
+    lines += summary_markdown(results)
+    text = "\n".join(lines)
+    with open(stem + ".md", "w") as f:
+        f.write(text)
+    with open(stem + ".json", "w") as f:
+        json.dump({"meta": meta, "rows": results}, f, indent=1, default=float)
+    return text
+
+
+def select(tables: Sequence[str] | None, names: Sequence[str] | None) -> list[Row]:
+    """The rows of ``tables`` (default all), narrowed to ``names`` (row ids ``table/name`` or names)."""
+    rows = [r for r in ROWS if not tables or r.table in tables]
+    if names:
+        rows = [r for r in rows if r.id in names or r.name in names]
+    return rows
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    import jax
+    from rich.console import Console
+
+    from train.presets import resolve_preset
+
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--tables", nargs="+", default=None, choices=TABLES, help="default: every table")
+    p.add_argument("--rows", nargs="+", default=None, help="only these rows (table/name or name; see --list)")
+    p.add_argument("--seeds", type=int, default=3)
+    p.add_argument("--preset", default="auto", choices=["auto", "thesis", "cpu", "fast"])
+    p.add_argument("--runs", default=None, help="run directories (default runs/thesis-<preset>)")
+    p.add_argument("--out", default=RESULTS, help="where the report goes")
+    p.add_argument("--smoke", action="store_true", help="tiny budgets: checks the plumbing, not the numbers")
+    p.add_argument("--quiet", action="store_true", help="hide the runs' own output")
+    p.add_argument("--list", action="store_true", help="print the rows and their commands, run nothing")
+    p.add_argument("--commit", default="", help="commit to record (default: git's HEAD)")
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = p.parse_args(argv)
+    args.preset = resolve_preset(args.preset)
+    args.runs = args.runs or os.path.join("runs", f"thesis-{args.preset}")
+    rows = select(args.tables, args.rows)
+    if not rows:
+        raise SystemExit(f"error: --rows {args.rows} matches no row of tables {args.tables or 'all'}; see --list")
+    console = Console(stderr=True)
+    if args.list:
+        for r in rows:
+            flags = " ".join(command(r, args.preset, 0, args.smoke))
+            cmd = f"python -m train.{r.algo} {flags}" if r.algo else f"missing: {r.missing}"
+            print(f"{r.id:24s} {r.label}: {cmd}")
+        return {}
+    git = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
+    meta = {"device": device_label(), "preset": args.preset, "seeds": args.seeds, "smoke": args.smoke,
+            "command": "python -m benchmarks.thesis " + " ".join(argv), "jax": jax.__version__,
+            "commit": args.commit or git.stdout.strip() or "unknown",
+            "date": time.strftime("%Y-%m-%d %H:%M")}  # fmt: skip
+    stem = os.path.join(args.out, f"thesis-{device_label()}-{args.preset}" + ("-smoke" if args.smoke else ""))
+    jobs = [(r, s) for r in rows if r.algo for s in range(args.seeds)]
+    t_start, ran, spent = time.perf_counter(), 0, 0.0
+    by_row: dict[str, list[dict]] = {r.id: [] for r in rows}
+    for i, (row, seed) in enumerate(jobs):
+        eta = f", ETA {spent / ran * (len(jobs) - i) / 60:.0f} min" if ran else ""
+        console.print(f"[bold][{i + 1}/{len(jobs)}][/bold] {row.id} seed {seed} — {row.label}{eta}")
+        t0 = time.perf_counter()
+        got = run_seed(row, seed, args)
+        if not got.get("skipped"):
+            ran, spent = ran + 1, spent + time.perf_counter() - t0
+        if "error" in got:
+            console.print(f"  [red]{row.id} seed {seed}: {got['error']}[/red]")
+        by_row[row.id].append(got)
+    meta["wall_s"] = time.perf_counter() - t_start
+    results = [{"row": dataclasses.asdict(r), "command": command(r, args.preset, 0, args.smoke) if r.algo else [],
+                "seeds": by_row[r.id], "figure": row_figure(r, by_row[r.id])} for r in rows]  # fmt: skip
+    meta["runs_wall_s"] = float(sum(r["figure"].get("wall_s", 0.0) for r in results))
+    report(results, meta, stem)
+    console.print(f"report: {stem}.md")
+    return {"meta": meta, "rows": results, "stem": stem}
+
+
+if __name__ == "__main__":
+    main()
