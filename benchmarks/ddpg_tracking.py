@@ -23,7 +23,6 @@ names the variant.
 from __future__ import annotations
 
 import argparse
-import sys
 from typing import Any
 
 import jax
@@ -33,7 +32,7 @@ from benchmarks import tracking_report
 from benchmarks.tracking_report import GOAL, pairs
 from envs_mjx import tracking
 from jaxrl_robot.agents.ddpg import make_train, make_trainer
-from train.presets import ddpg_env_overrides, ddpg_preset, resolve_preset
+from train.presets import ddpg_env_overrides, ddpg_preset
 from train.td3 import TD3_SETTINGS
 
 REFERENCES = {"scara": ("scara", {}), "sine": ("unicycle", {"trajectory": "sine"}),
@@ -100,15 +99,9 @@ def to_markdown(result: dict[str, Any]) -> str:
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
-    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--references", nargs="+", default=list(REFERENCES), choices=list(REFERENCES))
-    p.add_argument("--methods", nargs="+", default=["ddpg", "td3", "distributed"], choices=list(METHODS))
-    tracking_report.add_common_args(p)
-    argv = sys.argv[1:] if argv is None else argv
-    args = p.parse_args(argv)
-    args.preset = resolve_preset(args.preset)
-    cases = [(r, m) for r in args.references for m in args.methods]
-    return tracking_report.run_cases("ddpg_tracking", args, argv, cases, run_case, to_markdown)
+    methods = (["ddpg", "td3", "distributed"], list(METHODS))
+    return tracking_report.cli("ddpg_tracking", __doc__, ("references", list(REFERENCES)), methods, run_case,
+                               to_markdown, argv)  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -16,7 +16,6 @@ for every run; ``--label`` names the variant.
 from __future__ import annotations
 
 import argparse
-import sys
 from typing import Any
 
 import jax
@@ -27,7 +26,7 @@ from benchmarks.tracking_report import GOAL, pairs
 from envs_mjx import tracking
 from jaxrl_robot.agents.ppo import make_train, make_trainer
 from jaxrl_robot.types import as_recurrent
-from train.presets import ppo_preset, resolve_preset
+from train.presets import ppo_preset
 
 METHODS = {"mlp": ("mlp", "none"), "two-stage": ("mlp", "action-search"), "lstm": ("lstm", "none")}
 """method -> (policy, pretrain)."""
@@ -81,15 +80,8 @@ def to_markdown(result: dict[str, Any]) -> str:
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
-    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--trajectories", nargs="+", default=["sine", "ellipse"], choices=["sine", "ellipse"])
-    p.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
-    tracking_report.add_common_args(p)
-    argv = sys.argv[1:] if argv is None else argv
-    args = p.parse_args(argv)
-    args.preset = resolve_preset(args.preset)
-    cases = [(t, m) for t in args.trajectories for m in args.methods]
-    return tracking_report.run_cases("ppo_tracking", args, argv, cases, run_case, to_markdown)
+    return tracking_report.cli("ppo_tracking", __doc__, ("trajectories", ["sine", "ellipse"]),
+                               (list(METHODS), list(METHODS)), run_case, to_markdown, argv)  # fmt: skip
 
 
 if __name__ == "__main__":

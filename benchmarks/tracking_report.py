@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import os
 import subprocess
+import sys
 import time
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -150,3 +151,30 @@ def run_cases(
         result["runs"].append(run_case(reference, method, args))
         write_results(stem, result, markdown(result))
     return result
+
+
+def cli(
+    name: str,
+    doc: str,
+    references: tuple[str, Sequence[str]],
+    methods: tuple[Sequence[str], Sequence[str]],
+    run_case: Callable[[str, str, argparse.Namespace], dict],
+    markdown: Callable[[dict], str],
+    argv: Sequence[str] | None = None,
+) -> dict[str, Any]:
+    """The command line of a tracking benchmark: ``--<references[0]>`` (choices ``references[1]``,
+    all by default), ``--methods`` (choices ``methods[1]``, default ``methods[0]``) and
+    :func:`add_common_args`; runs every (reference, method) case with :func:`run_cases`."""
+    from train.presets import resolve_preset
+
+    flag, choices = references
+    p = argparse.ArgumentParser(description=doc.split("\n")[0])
+    p.add_argument(f"--{flag}", nargs="+", default=list(choices), choices=list(choices))
+    p.add_argument("--methods", nargs="+", default=list(methods[0]), choices=list(methods[1]))
+    add_common_args(p)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = p.parse_args(argv)
+    args.preset = resolve_preset(args.preset)
+    cases = [(r, m) for r in getattr(args, flag) for m in args.methods]
+    return run_cases(name, args, argv, cases, run_case, markdown)
+
