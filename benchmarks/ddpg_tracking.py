@@ -29,7 +29,7 @@ import jax
 
 import envs_mjx
 from benchmarks import tracking_report
-from benchmarks.tracking_report import GOAL, pairs
+from benchmarks.tracking_report import GOAL, THESIS, pairs
 from envs_mjx import tracking
 from jaxrl_robot.agents.ddpg import make_train, make_trainer
 from train.presets import ddpg_env_overrides, ddpg_preset
@@ -43,14 +43,6 @@ METHODS = {"ddpg": (False, {}), "td3": (False, TD3_SETTINGS), "distributed": (Tr
            "distributed-td3": (True, TD3_SETTINGS)}  # fmt: skip
 """method -> (distributed, config changes)."""
 
-THESIS = {  # Tables 4.3-4.5: (x, y, θ or z) sums over the test episode; the thesis ran TD3 only on the car
-    ("scara", "ddpg"): (2.585, 4.210, 5.389),
-    ("scara", "distributed"): (0.988, 3.944, 2.081),
-    ("sine", "ddpg"): (6.578, 3.495, 1.471),
-    ("sine", "distributed"): (2.592, 2.915, 1.242),
-    ("ellipse", "ddpg"): (4.267, 2.533, 5.265),
-    ("ellipse", "distributed"): (2.837, 2.919, 3.802),
-}
 
 
 def config_for(reference: str, method: str, args: argparse.Namespace, env: Any):

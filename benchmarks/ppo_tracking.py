@@ -22,7 +22,7 @@ import jax
 
 import envs_mjx
 from benchmarks import tracking_report
-from benchmarks.tracking_report import GOAL, pairs
+from benchmarks.tracking_report import GOAL, THESIS, pairs
 from envs_mjx import tracking
 from jaxrl_robot.agents.ppo import make_train, make_trainer
 from jaxrl_robot.types import as_recurrent
@@ -31,14 +31,6 @@ from train.presets import ppo_preset
 METHODS = {"mlp": ("mlp", "none"), "two-stage": ("mlp", "action-search"), "lstm": ("lstm", "none")}
 """method -> (policy, pretrain)."""
 
-THESIS = {  # Tables 5.4-5.7: (x, y, θ) sums over the test episode
-    ("sine", "mlp"): (2.998, 2.961, 1.495),
-    ("sine", "two-stage"): (3.276, 2.293, 1.147),
-    ("sine", "lstm"): (3.002, 1.717, 0.942),
-    ("ellipse", "mlp"): (3.906, 3.683, 4.451),
-    ("ellipse", "two-stage"): (1.857, 3.213, 3.643),
-    ("ellipse", "lstm"): (2.374, 2.636, 3.360),
-}
 
 
 def run_case(trajectory: str, method: str, args: argparse.Namespace) -> dict[str, Any]:

@@ -48,7 +48,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.tracking_report import GOAL
+from benchmarks.tracking_report import GOAL, THESIS
 from benchmarks.train_throughput import RESULTS, device_label
 from jaxrl_robot import plots
 from jaxrl_robot.logging import read_csv
@@ -87,30 +87,23 @@ UNICYCLE = {"sine": ("--env", "unicycle", "--env-config", "trajectory=sine"),
 
 
 def _tracking_rows() -> list[Row]:
+    """Tables 4.3-4.5 (DDPG, distributed DDPG) and 5.4-5.7 (PPO, two-stage, PPO + LSTM)."""
     rows = []
-    thesis = {  # Tables 4.3-4.5 (DDPG, distributed DDPG)
-        "scara": ((2.585, 4.210, 5.389), (0.988, 3.944, 2.081)),
-        "sine": ((6.578, 3.495, 1.471), (2.592, 2.915, 1.242)),
-        "ellipse": ((4.267, 2.533, 5.265), (2.837, 2.919, 3.802)),
-    }
     table = {"scara": "4.3", "sine": "4.4", "ellipse": "4.5"}
-    for ref, (ddpg, dist) in thesis.items():
+    for ref in ("scara", "sine", "ellipse"):
         env = ("--env", "scara") if ref == "scara" else UNICYCLE[ref]
-        rows.append(Row(table[ref], f"{ref}-ddpg", f"DDPG + PER, {ref}", "ddpg", env, ddpg, "tracking", ref))
+        rows.append(Row(table[ref], f"{ref}-ddpg", f"DDPG + PER, {ref}", "ddpg", env, THESIS[(ref, "ddpg")],
+                        "tracking", ref))  # fmt: skip
         rows.append(Row(table[ref], f"{ref}-distributed", f"Distributed DDPG, {ref}", "ddpg",
-                        (*env, "--distributed"), dist, "tracking", ref))  # fmt: skip
-    ppo = {  # Tables 5.4-5.7 (distributed PPO, two-stage, PPO + LSTM)
-        "sine": ((2.998, 2.961, 1.495), (3.276, 2.293, 1.147), (3.002, 1.717, 0.942)),
-        "ellipse": ((3.906, 3.683, 4.451), (1.857, 3.213, 3.643), (2.374, 2.636, 3.360)),
-    }
-    for ref, (mlp, two, lstm) in ppo.items():
+                        (*env, "--distributed"), THESIS[(ref, "distributed")], "tracking", ref))  # fmt: skip
+    for ref in ("sine", "ellipse"):
         env = UNICYCLE[ref]
         rows += [
-            Row("5.4-5.7", f"{ref}-ppo", f"Distributed PPO, {ref}", "ppo", env, mlp, "tracking", ref),
+            Row("5.4-5.7", f"{ref}-ppo", f"Distributed PPO, {ref}", "ppo", env, THESIS[(ref, "mlp")], "tracking", ref),
             Row("5.4-5.7", f"{ref}-two-stage", f"Two-stage (action-search pre-training + PPO), {ref}", "ppo",
-                (*env, "--pretrain", "action-search"), two, "tracking", ref),
-            Row("5.4-5.7", f"{ref}-lstm", f"Distributed PPO + LSTM, {ref}", "ppo", (*env, "--policy", "lstm"), lstm,
-                "tracking", ref),
+                (*env, "--pretrain", "action-search"), THESIS[(ref, "two-stage")], "tracking", ref),
+            Row("5.4-5.7", f"{ref}-lstm", f"Distributed PPO + LSTM, {ref}", "ppo", (*env, "--policy", "lstm"),
+                THESIS[(ref, "lstm")], "tracking", ref),
         ]  # fmt: skip
     return rows
 

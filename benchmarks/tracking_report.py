@@ -23,6 +23,23 @@ import numpy as np
 from benchmarks.train_throughput import RESULTS, device_label, write_results
 from train.common import parse_value
 
+THESIS = {  # (reference, method) -> (x, y, θ or z) sums over the test episode (SPEC.md §R)
+    ("scara", "ddpg"): (2.585, 4.210, 5.389),  # Table 4.3
+    ("scara", "distributed"): (0.988, 3.944, 2.081),
+    ("sine", "ddpg"): (6.578, 3.495, 1.471),  # Table 4.4
+    ("sine", "distributed"): (2.592, 2.915, 1.242),
+    ("ellipse", "ddpg"): (4.267, 2.533, 5.265),  # Table 4.5
+    ("ellipse", "distributed"): (2.837, 2.919, 3.802),
+    ("sine", "mlp"): (2.998, 2.961, 1.495),  # Tables 5.4-5.7: distributed PPO, two-stage, PPO + LSTM
+    ("sine", "two-stage"): (3.276, 2.293, 1.147),
+    ("sine", "lstm"): (3.002, 1.717, 0.942),
+    ("ellipse", "mlp"): (3.906, 3.683, 4.451),
+    ("ellipse", "two-stage"): (1.857, 3.213, 3.643),
+    ("ellipse", "lstm"): (2.374, 2.636, 3.360),
+}
+"""The thesis's tracking errors; DDPG-family methods are ``ddpg``/``distributed``, PPO ones
+``mlp``/``two-stage``/``lstm`` (the thesis ran TD3 only on the racing car)."""
+
 GOAL = {  # half of the thesis's best over all its methods, per axis (SPEC.md, Tables 4.3-4.5, 5.4-5.7)
     "scara": (0.49, 1.97, 1.04),
     "sine": (1.30, 0.86, 0.47),
