@@ -59,9 +59,9 @@ CLI = ddpg.OffPolicyCLI(
 )  # fmt: skip
 
 
-parse = CLI.parse  # (argv=None) -> Args: the preset's defaults for --env first, then every flag
-build = CLI.build  # (args) -> (env, trainer, config dict), a fresh run or a resumed one
-main = CLI.main  # (argv=None) -> exit code
+# parse(argv=None) -> Args (the preset's defaults for --env, then every flag); build(args) -> (env, trainer,
+# config dict) of a fresh or resumed run; main(argv=None) -> exit code
+parse, build, main = CLI.parse, CLI.build, CLI.main
 
 if __name__ == "__main__":
     sys.exit(main())
