@@ -113,6 +113,36 @@ def test_sequences_restarted_from_recorded_states_reproduce_the_acting_policy():
     np.testing.assert_allclose(nxt[5], v_next, atol=1e-6)
 
 
+def test_means_and_values_do_not_depend_on_how_the_unroll_is_cut_into_sequences():
+    """The sequences only partition the unroll: restarted from the recorded states, every split (1, 2,
+    3, 4, 6 or 12 steps per sequence) gives the same actor means, values and next values."""
+    config = PPOConfig(policy="lstm", batch_norm=False, lstm_size=8, actor_hidden=(8,), critic_hidden=(8,),
+                       sigma=(0.2,))  # fmt: skip
+    nets = make_ppo_nets(config, 2)
+    actor_params, stats, critic_params = nets.init(jax.random.PRNGKey(4), jax.random.PRNGKey(5), 3)
+    obs = jax.random.normal(jax.random.PRNGKey(6), (12, 3, 3))
+    episode_start = jax.random.bernoulli(jax.random.PRNGKey(7), 0.15, (12, 3)).at[0].set(True)
+
+    def act(memory, x):
+        o, new_episode = x
+        memory = jax.tree.map(lambda z, m: jnp.where(new_episode[:, None], z, m), nets.memory((3,)), memory)
+        nxt, _ = nets.act(actor_params, stats, critic_params, memory, o)
+        return nxt, memory
+
+    _, recorded = jax.lax.scan(act, nets.memory((3,)), (obs, episode_start))
+    outs = []
+    for seq in (1, 2, 3, 4, 6, 12):
+        reset = jnp.maximum(episode_start, (jnp.arange(12) % seq == 0)[:, None]).astype(jnp.float32)
+        (mean, _), _ = nets.actor_forward(actor_params, stats, recorded, reset, obs, False)
+        values, after = nets.critic_forward(critic_params, recorded, reset, obs)
+        outs.append((mean, values, nets.next_values(critic_params, after, obs)))
+    for mean, values, nxt in outs[1:]:
+        np.testing.assert_allclose(mean, outs[0][0], atol=1e-6)
+        np.testing.assert_allclose(values, outs[0][1], atol=1e-6)
+        np.testing.assert_allclose(nxt, outs[0][2], atol=1e-6)
+    assert float(jnp.std(outs[0][1])) > 1e-3  # the values vary: the comparison is not of constants
+
+
 def test_lstm_config_errors_name_the_field(unicycle):
     base = PPOConfig(policy="lstm", batch_norm=False, num_envs=4, unroll_length=20, seq_length=10, minibatch_size=40)
     with pytest.raises(ConfigError, match="seq_length=7 must divide unroll_length=20"):
