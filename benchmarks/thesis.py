@@ -18,11 +18,11 @@ and rewrites the report.
 
 Report: ``<out>/thesis-<device>-<preset>.md`` (and ``.json``), one section per table — the
 thesis's figure, ours as mean ± std over seeds with the per-seed values, met / not met against
-the goal (arm: ≥ 95 % per row; tracking: ≤ ½ of the thesis's best over its methods per axis;
-driving: ≥ 19 / 20 per road), wall time, commit, device and the exact command — plus figures in
-``<out>/thesis-<device>-<preset>-figures/``: per table the learning curves of its rows (mean
-over seeds, min–max band) and, for tracking rows, seed 0's reference-vs-path and per-axis error
-plots drawn by the run.
+the goal (arm: ≥ 95 % per row, with success at 2 and 1 cm beside it; tracking: ≤ ½ of the
+thesis's best over its methods per axis; driving: ≥ 19 / 20 per road), wall time, commit,
+device and the exact command — plus figures in ``<out>/thesis-<device>-<preset>-figures/``: per
+table the learning curves of its rows (mean over seeds, min–max band) and, for tracking rows,
+seed 0's reference-vs-path and per-axis error plots drawn by the run.
 
 ``--smoke`` shrinks every row's budget to seconds (checks the plumbing, not the numbers).
 Seeds run one after another (each a command-line run); vmapped seeds for the tracking rows:
@@ -213,6 +213,8 @@ def row_figure(row: Row, seeds: list[dict]) -> dict[str, Any]:
         vals = np.array([[100.0 * s["success_rate"]] for s in done])
         goal = np.array([ARM_GOAL])
         met = vals.mean(0) >= goal
+        if all("success_1cm" in s for s in done):  # success at 2 and 1 cm (mean over seeds, %)
+            out["precision"] = [100.0 * float(np.mean([s[k] for s in done])) for k in ("success_2cm", "success_1cm")]
     else:
         vals = np.array([[s[k] for k in axis_keys(s)] for s in done])
         goal = np.array(GOAL[row.reference])
@@ -233,8 +235,8 @@ def table_markdown(table: str, results: list[dict], fig_dir: str, rel: str) -> l
     rows = [r for r in results if r["row"]["table"] == table]
     kind = rows[0]["row"]["kind"]
     if kind == "arm":
-        lines += ["| row | thesis | ours (mean ± std) | seeds | met (≥ 95) | wall s | command |",
-                  "|---|---:|---:|---|---|---:|---|"]
+        lines += ["| row | thesis | ours (mean ± std) | seeds | met (≥ 95) | at 2 cm / 1 cm | wall s | command |",
+                  "|---|---:|---:|---|---|---:|---:|---|"]
     elif kind == "tracking":
         lines += ["| row | thesis x / y / θ-z | ours x | ours y | ours θ-z | seeds (x / y / θ-z) | goal | met | wall s "
                   "| command |", "|---|---|---:|---:|---:|---|---|---|---:|---|"]  # fmt: skip
@@ -250,15 +252,16 @@ def table_markdown(table: str, results: list[dict], fig_dir: str, rel: str) -> l
         if not fig.get("seeds_done"):
             errors = "; ".join(s.get("error", "") for s in r["seeds"])
             lines.append(f"| {row['label']} | {row['thesis']} | **not run** ({errors or 'no seed finished'}) |"
-                         + " |" * (6 if kind == "arm" else 8))  # fmt: skip
+                         + " |" * (7 if kind == "arm" else 8))  # fmt: skip
             continue
         per_seed = "; ".join(" / ".join(f"{v:.2f}" if kind == "tracking" else f"{v:.0f}" for v in s)
                              for s in fig["values"])  # fmt: skip
         seeds = f"{per_seed} ({fig['seeds_done']}/{fig['seeds']})"
         if kind == "arm":
             cell = _cell(fig["mean"][0], fig["std"][0], fig["met"][0], 1)
+            precise = " / ".join(f"{v:.1f}" for v in fig.get("precision", ())) or "—"
             lines.append(f"| {row['label']} | {row['thesis']} | {cell} | {seeds} | {'yes' if fig['met'][0] else 'no'} "
-                         f"| {fig['wall_s']:.0f} | {cmd} |")  # fmt: skip
+                         f"| {precise} | {fig['wall_s']:.0f} | {cmd} |")  # fmt: skip
         else:
             cells = " | ".join(_cell(m, s, ok, 2) for m, s, ok in zip(fig["mean"], fig["std"], fig["met"], strict=True))
             goal = " / ".join(f"{g:.2f}" for g in fig["goal"])

@@ -4,6 +4,8 @@
   *unbatched* env with the policy's mean action; returns every episode's final metrics.
 * :func:`summarize_episodes` — success rate, mean extra distance (arm7, thesis §4.1.3) and
   mean return.
+* :func:`precision_summary` — success at tighter goal thresholds (5, 2, 1 cm) from the episodes'
+  closest approach to the goal, and that distance's distribution.
 * :func:`tracking_error_sums` — per-axis sums of absolute tracking errors over one test
   episode (Tables 4.3-4.5, 5.4-5.7), with the mean per step and the number of steps.
 """
@@ -19,7 +21,16 @@ from brax.envs.base import Env
 
 from jaxrl_robot.types import Policy, RecurrentPolicy, as_recurrent
 
-__all__ = ["run_test_episodes", "summarize_episodes", "tracking_error_sums"]
+__all__ = [
+    "PRECISION_THRESHOLDS",
+    "precision_summary",
+    "run_test_episodes",
+    "summarize_episodes",
+    "tracking_error_sums",
+]
+
+PRECISION_THRESHOLDS = (0.05, 0.02, 0.01)
+"""Goal thresholds (m) at which :func:`precision_summary` reports success."""
 
 
 def run_test_episodes(
@@ -45,7 +56,9 @@ def run_test_episodes(
       params: optional episode parameters passed to ``env.reset``.
     Returns:
       ``[E]`` arrays: every env metric at the episode's last step, plus ``return``,
-      ``length`` and ``terminated`` (1.0 where the env ended the episode before the limit).
+      ``length`` and ``terminated`` (1.0 where the env ended the episode before the limit);
+      with a ``distance`` metric also ``closest_distance``, its smallest value over the start and
+      the episode's steps (not counting a step that left the region, ``out_of_region`` metric).
     """
     limit = int(episode_length or env.episode_length)
     keys = jax.random.split(key, num_episodes)
@@ -56,10 +69,11 @@ def run_test_episodes(
     zeros = jnp.zeros((num_episodes,), jnp.float32)
     policy = as_recurrent(policy)
     memory = jax.tree.map(lambda c: jnp.broadcast_to(c, (num_episodes,) + jnp.shape(c)), policy.carry)
-    init = (state, memory, zeros, zeros, zeros, dict(state.metrics))
+    closest = state.metrics.get("distance", zeros)
+    init = (state, memory, zeros, zeros, zeros, dict(state.metrics), closest)
 
     def body(carry, _):
-        s, memory, finished, ret, length, final = carry
+        s, memory, finished, ret, length, final, closest = carry
         memory, action = policy.step(memory, s.obs)
         ns = jax.vmap(env.step)(s, action)
         live = 1.0 - finished
@@ -67,11 +81,33 @@ def run_test_episodes(
         length = length + live
         ending = live * ns.done.astype(jnp.float32)
         final = jax.tree.map(lambda f, m: jnp.where(live > 0, m, f), final, dict(ns.metrics))
-        return (ns, memory, jnp.maximum(finished, ending), ret, length, final), None
+        inside = live * (1.0 - ns.metrics.get("out_of_region", zeros))  # arm7: success needs the region
+        closest = jnp.where(inside > 0, jnp.minimum(closest, ns.metrics.get("distance", closest)), closest)
+        return (ns, memory, jnp.maximum(finished, ending), ret, length, final, closest), None
 
-    (_, _, finished, ret, length, final), _ = jax.lax.scan(body, init, None, length=limit)
+    (_, _, finished, ret, length, final, closest), _ = jax.lax.scan(body, init, None, length=limit)
     out = {k: v for k, v in final.items() if v.shape == (num_episodes,)}
     out.update({"return": ret, "length": length, "terminated": finished})
+    if "distance" in state.metrics:
+        out["closest_distance"] = closest
+    return out
+
+
+def precision_summary(
+    episodes: dict[str, Any], thresholds: tuple[float, ...] = PRECISION_THRESHOLDS
+) -> dict[str, float]:
+    """Success at each goal threshold ``t`` from episodes run on an env whose own threshold is the
+    smallest ``t``: an episode succeeds at ``t`` when its closest approach to the goal
+    (``closest_distance`` of :func:`run_test_episodes`) is below ``t``.  Up to the first step within
+    ``t`` such an episode is the one the env with threshold ``t`` would run, which ends there.
+
+    Returns ``success_<t in cm>cm`` per threshold (fractions) and the closest distance's median,
+    90th percentile and maximum (m).
+    """
+    d = np.asarray(episodes["closest_distance"], np.float64)
+    out = {f"success_{t * 100:g}cm": float((d < t).mean()) for t in thresholds}
+    out.update(closest_distance_median=float(np.median(d)), closest_distance_p90=float(np.percentile(d, 90)),
+               closest_distance_max=float(d.max()))  # fmt: skip
     return out
 
 

@@ -23,6 +23,8 @@ def test_table_3_1_smoke_report_resume_and_missing_rows(tmp_path):
         assert "error" not in seed and seed["finished"] is True, seed
         assert r["figure"]["seeds_done"] == 1 and 0.0 <= r["figure"]["mean"][0] <= 100.0
         assert r["figure"]["met"] == [r["figure"]["mean"][0] >= 95.0]
+        assert len(r["figure"]["precision"]) == 2 and 0.0 <= min(r["figure"]["precision"])  # at 2 and 1 cm
+        assert seed["success_5cm"] == seed["success_rate"]  # the precision run agrees with the evaluation
     stem = result["stem"]
     md = open(stem + ".md").read()
     assert md.count("| DDPG, ") == 6 and "## Table 3.1" in md and "## Tables 7.1–7.3" in md

@@ -72,7 +72,13 @@ from jax.sharding import Mesh
 
 from jaxrl_robot import parallel
 from jaxrl_robot.checkpoint import Checkpointer
-from jaxrl_robot.evaluation import run_test_episodes, summarize_episodes, tracking_error_sums
+from jaxrl_robot.evaluation import (
+    PRECISION_THRESHOLDS,
+    precision_summary,
+    run_test_episodes,
+    summarize_episodes,
+    tracking_error_sums,
+)
 from jaxrl_robot.logging import MetricsLogger, read_csv
 from jaxrl_robot.plots import plot_tracking, plot_training_curves
 from jaxrl_robot.types import Trainer, as_recurrent
@@ -127,6 +133,8 @@ class RunSpec:
       run_dir: an existing run directory to resume (``None``: start a new run).
       checkpoint_every: chunks between checkpoints (the last chunk is always saved).
       eval_episodes: test episodes for reaching envs.
+      precision: reaching envs with a goal threshold: also report success at 5, 2 and 1 cm
+        (:func:`evaluate`).
       episode_length: step limit of a test episode (0: ``env.episode_length``).
       stop_after_steps: stop (resumably) once this many env steps are done; 0 runs to the end.
       progress: draw a progress bar; ``None`` decides by :func:`use_progress_bar`.
@@ -142,6 +150,7 @@ class RunSpec:
     run_dir: str | None = None
     checkpoint_every: int = 10
     eval_episodes: int = 100
+    precision: bool = True
     episode_length: int = 0
     stop_after_steps: int = 0
     progress: bool | None = None
@@ -260,6 +269,7 @@ def evaluate(
     run_dir: str | None = None,
     episode_length: int = 0,
     episodes_fn: Callable[[jax.Array], dict[str, Any]] | None = None,
+    precision: bool = False,
 ) -> dict[str, Any]:
     """Evaluate a deterministic policy; draws the tracking figures into ``run_dir`` if given.
 
@@ -267,6 +277,10 @@ def evaluate(
     |error| (plus means per step and the step count). Other envs: ``episodes`` test episodes
     → success rate, mean extra distance, mean return (whichever metrics the env has);
     ``episodes_fn(key)``, if given, is an already compiled ``run_test_episodes`` of ``policy``.
+    With ``precision`` and an env whose config has ``goal_threshold`` (arm7): the same episodes
+    again on the env with the smallest of ``PRECISION_THRESHOLDS`` at or below its own, reported
+    as ``success_5cm``, ``success_2cm``, ``success_1cm`` and the closest distance's median, 90th
+    percentile and maximum (:func:`~jaxrl_robot.evaluation.precision_summary`).
     """
     if is_tracking_env(env):
         from envs_mjx import tracking
@@ -285,6 +299,12 @@ def evaluate(
     if episodes_fn is None:
         episodes_fn = jax.jit(lambda k: run_test_episodes(k, env, policy, episodes, episode_length or None))
     summary = summarize_episodes(jax.device_get(episodes_fn(key)))
+    own = getattr(getattr(env, "config", None), "goal_threshold", None)
+    if precision and own is not None:
+        thresholds = tuple(t for t in PRECISION_THRESHOLDS if t <= own + 1e-9)
+        strict = type(env)(env.config, goal_threshold=min(thresholds + (own,)))
+        run = jax.jit(lambda k: run_test_episodes(k, strict, policy, episodes, episode_length or None))
+        summary.update(precision_summary(jax.device_get(run(key)), thresholds))
     return {"kind": "episodes", **summary}
 
 
@@ -471,6 +491,7 @@ def run(spec: RunSpec) -> dict[str, Any]:
         run_dir if main else None,
         spec.episode_length,
         episodes_fn=_compiled_episodes(eval_future, local_state),
+        precision=spec.precision,
     )
     result["eval_s"] = time.perf_counter() - t_eval
     result["wall_s"] = wall_before + time.perf_counter() - t0
@@ -512,6 +533,8 @@ class RunOptions:
     """Chunks between checkpoints (the last chunk is always saved)."""
     eval_episodes: int = 100
     """Test episodes of the final evaluation (reaching envs)."""
+    precision: bool = True
+    """Reaching envs with a goal threshold (arm7): also report success at 5, 2 and 1 cm."""
     devices: int = 0
     """Devices to spread the lanes over (0: all devices, of every process in a run over several)."""
     stop_after_steps: int = 0
@@ -767,6 +790,7 @@ def cli_main(cli: AlgorithmCLI, argv: Sequence[str] | None = None) -> int:
         run_dir=args.resume,
         checkpoint_every=args.checkpoint_every,
         eval_episodes=args.eval_episodes,
+        precision=args.precision,
         episode_length=int(config[cli.name]["episode_length"]),
         stop_after_steps=args.stop_after_steps,
         progress=args.progress,

@@ -1,0 +1,47 @@
+"""Precision evaluation: success at 5, 2 and 1 cm from one run on the strictest env, checked against
+separate runs on envs with each goal threshold (an independent oracle) and by construction."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import envs_mjx
+from jaxrl_robot.evaluation import precision_summary, run_test_episodes, summarize_episodes
+from train.common import evaluate
+
+
+def aim_beside_the_goal(env):
+    """Move straight at a point beside the goal (the largest step C allows), ``obs [E, 9] -> [E, 3]``; the
+    point lies 0-3 cm from the goal along x, different per goal, so the episodes' precision varies."""
+
+    def policy(obs):
+        goal = obs[..., 6:9]
+        offset = 0.03 * jnp.abs(jnp.sin(1000.0 * goal[..., :1]))
+        d = (obs[..., 3:6] + offset * jnp.asarray([1.0, 0.0, 0.0])) / env.action_scale
+        return d / jnp.maximum(jnp.max(jnp.abs(d), axis=-1, keepdims=True), 1.0)
+
+    return policy
+
+
+def test_success_at_each_threshold_equals_a_run_on_the_env_with_that_threshold():
+    env = envs_mjx.make("arm7", mode="kinematic")
+    policy = aim_beside_the_goal(env)
+    key = jax.random.PRNGKey(3)
+    got = evaluate(key, env, policy, 64, precision=True)
+    for t in (0.05, 0.02, 0.01):
+        alone = envs_mjx.make("arm7", mode="kinematic", goal_threshold=t)
+        oracle = summarize_episodes(jax.device_get(run_test_episodes(key, alone, policy, 64)))
+        assert got[f"success_{t * 100:g}cm"] == pytest.approx(oracle["success_rate"]), t
+    assert got["success_5cm"] == pytest.approx(got["success_rate"])  # the standard evaluation's own figure
+    rates = (got["success_5cm"], got["success_2cm"], got["success_1cm"])
+    assert rates[0] > rates[1] > rates[2] > 0.0, rates  # the thresholds tell the episodes apart
+    assert got["closest_distance_median"] <= got["closest_distance_p90"] <= got["closest_distance_max"]
+
+
+def test_precision_summary_by_hand():
+    got = precision_summary({"closest_distance": np.array([0.004, 0.012, 0.03, 0.07])})
+    assert (got["success_5cm"], got["success_2cm"], got["success_1cm"]) == (0.75, 0.5, 0.25)
+    assert got["closest_distance_median"] == pytest.approx(0.021) and got["closest_distance_max"] == 0.07
