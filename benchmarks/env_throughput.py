@@ -117,6 +117,7 @@ CASES: list[Case | RawMJX] = [
     Case("unicycle dynamic", "unicycle", (("mode", "dynamic"),), raw="raw MJX unicycle"),
     Case("unicycle kinematic", "unicycle", (("mode", "kinematic"),), raw="raw MJX unicycle"),
     RawMJX("raw MJX unicycle", "unicycle", (("mode", "dynamic"),)),
+    Case("racecar", "racecar"),
 ]
 
 XLA_SETTINGS = {"no-algsimp": {"xla_disable_hlo_passes": "algsimp"}, "xla-default": {}}

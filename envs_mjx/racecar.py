@@ -68,6 +68,9 @@ grows by ``damage_gain · (1 + impact speed in m/s)``.  A step whose damage grew
   straight ahead between 17 and 18), each the centre distance to the nearest opponent in it,
   ``max_range`` when none is closer.
 
+With ``opponent_speeds`` (off by default) 36 more values follow (96-dim): per sector the closing
+speed of the opponent it reports (positive when we approach it), 0 where none.
+
 With ``normalize_obs`` (default) distances are divided by ``max_range`` and speeds by
 ``speed_scale`` (300 km/h, the scale of the usual TORCS client); ``θ`` and ``d`` are unchanged and
 out-of-track range finders still read −1.
@@ -92,7 +95,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import jax
@@ -113,7 +116,10 @@ __all__ = [
     "RaceState",
     "Road",
     "TORCS_RANGEFINDER_ANGLES",
+    "LAP_OUTCOMES",
     "expert_action",
+    "lap_summary",
+    "make_lap_test",
     "race_reward",
 ]
 
@@ -215,6 +221,11 @@ class RaceCarConfig:
     """Range of the range finders and opponent sensors."""
     normalize_obs: bool = True
     """Divide distances by max_range and speeds by speed_scale in the observation."""
+    opponent_speeds: bool = False
+    """Append 36 values to the observation (96-dim): per 10° sector, the closing speed (m/s, positive
+    when approaching) of the opponent the sector reports, 0 where none.  TORCS's sensors (the 60-dim
+    observation of §6.1.1) give distances only, from which one frame cannot tell a slower car ahead
+    from a faster one."""
     speed_scale: float = 300.0 / 3.6
     """Speed unit of the normalised observation (300 km/h)."""
     pedal_map: str = "clip"
@@ -401,8 +412,12 @@ class RaceCar(RobotEnv):
 
     name = "racecar"
     Config = RaceCarConfig
-    observation_size = 60
     action_size = 3
+
+    @property
+    def observation_size(self) -> int:
+        """60 (thesis §6.1.1), 96 with ``opponent_speeds``."""
+        return 60 + (N_SECTORS if self.config.opponent_speeds else 0)
 
     def __init__(self, config: RaceCarConfig | None = None, **overrides: Any):
         super().__init__(config, **overrides)
@@ -483,6 +498,11 @@ class RaceCar(RobotEnv):
         """1 + the number of opponents further along than us (unwrapped progress)."""
         return 1.0 + jnp.sum((rs.opp_progress > rs.progress).astype(jnp.float32))
 
+    def expert(self, state: State) -> jax.Array:
+        """The scripted driver's action ``[3]`` for ``state`` (:func:`expert_action`): the teacher of the
+        imitation stage (thesis §6.1.2; ``jaxrl_robot.imitation.expert_of``)."""
+        return expert_action(self, state)
+
     # --------------------------------------------------------------- sensors
     def sensors(self, rs: RaceState) -> dict[str, jax.Array]:
         """Raw sensor readings: ``angle``, ``tracks [19]``, ``track_pos``, ``speed [3]``, ``opponents [36]``."""
@@ -494,15 +514,24 @@ class RaceCar(RobotEnv):
             self.track, rs.pos, rs.yaw, rs.seg, self._angles, cfg.max_range, self._ray_window
         )
         tracks = jnp.where(out, -1.0, tracks)
-        opp_pos, _, _ = self.opponent_poses(rs)
+        opp_pos, _, opp_vel = self.opponent_poses(rs)
         rel = opp_pos - rs.pos
         dist = jnp.linalg.norm(rel, axis=-1)
         bearing = racetrack.wrap_angle(jnp.arctan2(rel[:, 1], rel[:, 0]) - rs.yaw)
         sector = jnp.clip(jnp.floor((bearing + jnp.pi) / (2 * jnp.pi / N_SECTORS)).astype(jnp.int32), 0, N_SECTORS - 1)
         in_sector = sector[None, :] == jnp.arange(N_SECTORS)[:, None]  # [36, N]
-        opponents = jnp.min(jnp.where(in_sector, dist[None, :], cfg.max_range), axis=1, initial=cfg.max_range)
+        masked = jnp.where(in_sector, dist[None, :], jnp.inf)
+        opponents = jnp.minimum(jnp.min(masked, axis=1, initial=jnp.inf), cfg.max_range)
         speed = jnp.stack([rs.vel[0], rs.vel[1], jnp.zeros_like(rs.vel[0])])
-        return {"angle": theta, "tracks": tracks, "track_pos": d, "speed": speed, "opponents": opponents}
+        out = {"angle": theta, "tracks": tracks, "track_pos": d, "speed": speed, "opponents": opponents}
+        if cfg.opponent_speeds:
+            fwd, left = _rot(rs.yaw)
+            v_rel = (rs.vel[0] * fwd + rs.vel[1] * left)[None, :] - opp_vel  # [N, 2] our velocity relative to theirs
+            closing = jnp.sum(v_rel * rel, axis=-1) / jnp.maximum(dist, 1e-3)  # [N] > 0: we approach
+            nearest = jnp.argmin(masked, axis=1)  # [36]
+            seen = jnp.any(in_sector, axis=1) & (opponents < cfg.max_range)
+            out["opponent_speeds"] = jnp.where(seen, closing[nearest], 0.0)
+        return out
 
     def observe(self, rs: RaceState) -> jax.Array:
         """The 60-dim observation ``[θ, tracks (19), d, v_x, v_y, v_z, opponents (36)]``."""
@@ -513,7 +542,11 @@ class RaceCar(RobotEnv):
             tracks = jnp.where(tracks < 0.0, -1.0, tracks / cfg.max_range)
             opponents = opponents / cfg.max_range
             speed = speed / cfg.speed_scale
-        return jnp.concatenate([sen["angle"][None], tracks, sen["track_pos"][None], speed, opponents])
+        parts = [sen["angle"][None], tracks, sen["track_pos"][None], speed, opponents]
+        if cfg.opponent_speeds:
+            closing = sen["opponent_speeds"]
+            parts.append(closing / cfg.speed_scale if cfg.normalize_obs else closing)
+        return jnp.concatenate(parts)
 
     # ---------------------------------------------------------------- physics
     def _forces(self, vel: jax.Array, controls: jax.Array, grip: jax.Array) -> jax.Array:
@@ -866,3 +899,72 @@ def expert_action(env: RaceCar, state: State) -> jax.Array:
     accel = jnp.clip(0.5 * (v_star - v), 0.0, budget)
     brake = jnp.clip(0.3 * (v - v_star - 0.5), 0.0, jnp.maximum(budget, 0.3))
     return env.action_from_controls(steer, accel, brake)
+
+
+LAP_OUTCOMES = ("success", "collision", "out_of_track", "stalled")
+"""How a test lap ends (thesis Tables 6.2–6.3): a collision (with a car or a wall) at any point;
+else out of the track at any point; else ``success`` if the lap was finished; else ``stalled``
+(too slow, backwards on the road, or the time limit)."""
+
+
+def make_lap_test(
+    env: RaceCar, laps: int = 20, roads: tuple[str, ...] = tuple(racetrack.ROADS)
+) -> Callable[[Callable[[RaceCar, State], jax.Array], jax.Array], dict[str, jax.Array]]:
+    """``test(act, key)``: ``laps`` one-lap episodes on each of ``roads`` driven by ``act(env, state) -> action [3]``.
+
+    Every road is ``env``'s configuration with that road (one lap per episode, random start and
+    opponents from ``key`` as ``env.reset`` draws them); all roads and laps run as one vmapped
+    program until every episode has ended.  ``act`` gets the env of the road being driven and the
+    state; a policy reads the observation (``lambda e, s: policy(s.obs)``), the expert the road and
+    the whole state (``expert_action``).  ``test`` is pure and
+    jit-able (the roads are built here, outside any trace).
+
+    ``test`` returns ``[R, laps]`` arrays: one 0/1 entry per outcome of :data:`LAP_OUTCOMES`,
+    ``overtakes``, ``overtaken``, ``rank`` (final), ``speed`` (mean speed along the axis, m/s),
+    ``time`` (s) and ``progress`` (m).
+    """
+    cfg = dataclasses.replace(env.config, laps=1)
+    envs = [RaceCar(dataclasses.replace(cfg, road=name)) for name in roads]
+    stacked = jax.tree.map(lambda *x: jnp.stack(x), *[e.road for e in envs])
+    driver = envs[0]
+    limit = cfg.max_steps
+
+    def road_laps(road: Road, keys: jax.Array, act: Callable[[RaceCar, State], jax.Array]) -> dict[str, jax.Array]:
+        e = driver.on_road(road)
+        s = jax.vmap(e.reset)(keys)
+
+        def body(c):
+            s, done, t = c
+            n = jax.vmap(lambda st: e.step(st, act(e, st)))(s)
+            n = jax.tree.map(lambda a, b: jnp.where(done.reshape(done.shape + (1,) * (a.ndim - 1)), a, b), s, n)
+            return n, done | (n.done > 0), t + 1
+
+        s, _, _ = jax.lax.while_loop(lambda c: (c[2] < limit) & ~jnp.all(c[1]), body, (s, jnp.zeros(laps, bool), 0))
+        m, rs = s.metrics, s.pipeline_state
+        collision = (rs.collisions > 0).astype(jnp.float32)
+        out = (1.0 - collision) * (rs.out_count > 0)
+        success = (1.0 - collision) * (1.0 - out) * m["success"]
+        time = jnp.maximum(rs.time, cfg.dt)
+        return {"success": success, "collision": collision, "out_of_track": out,
+                "stalled": 1.0 - collision - out - success, "overtakes": rs.overtakes, "overtaken": rs.overtaken,
+                "rank": m["rank"], "speed": rs.progress / time, "time": rs.time, "progress": rs.progress}  # fmt: skip
+
+    def test(act: Callable[[RaceCar, State], jax.Array], key: jax.Array) -> dict[str, jax.Array]:
+        keys = jax.random.split(key, len(roads) * laps).reshape(len(roads), laps, -1)
+        return jax.vmap(lambda road, k: road_laps(road, k, act))(stacked, keys)
+
+    return test
+
+
+def lap_summary(result: Mapping[str, Any], roads: tuple[str, ...] = tuple(racetrack.ROADS)) -> dict[str, dict]:
+    """Per road (host numbers) from the arrays of :func:`make_lap_test`'s test: ``laps``, the count of each outcome,
+    ``overtakes`` (mean per lap), ``speed_kmh`` (mean), ``rank`` (mean final rank)."""
+    r = {k: np.asarray(v) for k, v in result.items()}
+    out = {}
+    for i, road in enumerate(roads):
+        row = {"laps": int(r["success"].shape[1])}
+        row.update({k: int(round(float(r[k][i].sum()))) for k in LAP_OUTCOMES})
+        row.update(overtakes=float(r["overtakes"][i].mean()), speed_kmh=float(3.6 * r["speed"][i].mean()),
+                   rank=float(r["rank"][i].mean()))  # fmt: skip
+        out[road] = row
+    return out

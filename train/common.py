@@ -296,6 +296,8 @@ def evaluate(
             ok = np.isfinite(real[:, 0])
             plot_tracking(ref[ok], real[ok], result["abs_error"][: result["steps"]], run_dir, axes)
         return {"kind": "tracking", **summary}
+    if is_racing_env(env):
+        return race_evaluation(key, env, policy, episodes)
     if episodes_fn is None:
         episodes_fn = jax.jit(lambda k: run_test_episodes(k, env, policy, episodes, episode_length or None))
     summary = summarize_episodes(jax.device_get(episodes_fn(key)))
@@ -308,6 +310,29 @@ def evaluate(
     return {"kind": "episodes", **summary}
 
 
+def is_racing_env(env: Env) -> bool:
+    """Whether ``env`` is ``racecar`` (evaluated by laps on every road)."""
+    from envs_mjx.racecar import RaceCar
+
+    return isinstance(env, RaceCar)
+
+
+def race_evaluation(key: jax.Array, env: Env, policy: Callable, laps: int) -> dict[str, Any]:
+    """``laps`` one-lap test episodes on each road (thesis Tables 6.2-6.3) with the deterministic ``policy``:
+    ``<road>/<outcome>`` counts (success, collision, out_of_track, stalled), ``<road>/overtakes`` (mean),
+    ``<road>/speed_kmh``, ``<road>/rank`` and ``success_rate`` over every lap
+    (:func:`envs_mjx.racecar.make_lap_test`)."""
+    from envs_mjx.racecar import lap_summary, make_lap_test
+
+    test = make_lap_test(env, laps)
+    roads = lap_summary(jax.device_get(jax.jit(lambda k: test(lambda e, s: policy(s.obs), k))(key)))
+    flat: dict[str, Any] = {"kind": "racing", "laps_per_road": laps}
+    flat["success_rate"] = sum(r["success"] for r in roads.values()) / (laps * len(roads))
+    for road, row in roads.items():
+        flat.update({f"{road}/{k}": v for k, v in row.items() if k != "laps"})
+    return flat
+
+
 def compile_evaluation_async(
     spec: RunSpec, key: jax.Array, state: Any
 ) -> Future[Callable[[jax.Array, Any], Any]] | None:
@@ -317,7 +342,7 @@ def compile_evaluation_async(
     is compiled when it runs). The thread overlaps XLA compilation with training. ``state`` is
     this process's view of the state (:func:`_local_view`): the evaluation runs on local devices.
     """
-    if is_tracking_env(spec.env):
+    if is_tracking_env(spec.env) or is_racing_env(spec.env):
         return None
     policy_of, env, n, limit = spec.trainer.policy, spec.env, spec.eval_episodes, spec.episode_length or None
     fn = jax.jit(lambda k, s: run_test_episodes(k, env, policy_of(s), n, limit))

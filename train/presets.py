@@ -73,6 +73,8 @@ def _family(env_name: str) -> str:
         return "arm"
     if base in ("unicycle", "scara"):
         return "tracking"
+    if base == "racecar":
+        return "racing"
     return "other"
 
 
@@ -281,7 +283,8 @@ def ddpg_env_overrides(name: str, env_name: str) -> dict:
     """
     if resolve_preset(name) not in ("cpu", "fast"):
         return {}
-    return {"unicycle": {"a_p": 100.0}, "scara": {"reward_coef": 50.0}}.get(env_name.split(":")[-1], {})
+    sharper = {"unicycle": {"a_p": 100.0}, "scara": {"reward_coef": 50.0}, "racecar": {"opponent_speeds": True}}
+    return sharper.get(env_name.split(":")[-1], {})
 
 
 def ddpg_preset(
@@ -348,6 +351,8 @@ def ddpg_preset(
             "fast": dict(num_envs=256, unroll_length=4, updates_per_iteration=32, batch_size=256,
                          buffer_size=1_000_000, total_steps=20_000 * episode_length, **learning),
         }
+    elif family == "racing":
+        base, presets = _racing_preset()
     else:
         base = DDPGConfig(schedule="steps", total_steps=200_000, num_envs=4, unroll_length=8, updates_per_iteration=8,
                           learning_starts=1000, batch_size=128, buffer_size=200_000, actor_lr=1e-3, critic_lr=1e-3,
@@ -357,6 +362,39 @@ def ddpg_preset(
                    "fast": dict(num_envs=256, updates_per_iteration=64, batch_size=1024, total_steps=5_000_000)}
     config = base.replace(**presets[name])
     return distribute(config, name) if distributed else config
+
+
+def _racing_preset() -> tuple[DDPGConfig, dict]:
+    """``racecar`` (thesis ch. 6): imitation of the expert driver, then DDPG (TD3 with ``train.td3``).
+
+    ``thesis``: one car, one update per step, the OU noise of Table 6.1 read as (reversion, mean,
+    scale) — steering (0.8, 0, 0.2), acceleration (1, 0.5, 0.1), brake (1, −0.1, 0.05) — 4 000
+    imitation steps with 50 pairs per update (§6.1.2, Fig. 6.5).  The thesis gives no network
+    sizes, learning rates, γ or memory for this task; those here are the usual ones of DDPG on
+    TORCS (300-600 nets, lr 1e-4 / 1e-3, γ 0.99, τ 0.001, memory 100 000).  Rewards of 20-40 per
+    step are scaled by 0.01 in the critic target (Q stays near 30 at γ = 0.99).
+    ``cpu`` (16 lanes) and ``fast`` (1 024 lanes) imitate for half the run on larger mini-batches,
+    then fine-tune with the actor anchored to the expert's labels (``imitation_weight``); their
+    env adds the opponents' closing speeds to the observation (:func:`ddpg_env_overrides`).
+    """
+    base = DDPGConfig(
+        schedule="steps", total_steps=100_000, num_envs=1, unroll_length=1, updates_per_iteration=1,
+        learning_starts=1000, batch_size=32, buffer_size=100_000, actor_lr=1e-4, critic_lr=1e-3, tau=0.001,
+        gamma=0.99, reward_scale=0.01, actor_hidden=(300, 600), critic_hidden=(300, 600), noise="ou",
+        noise_reversion=(0.8, 1.0, 1.0), noise_mean=(0.0, 0.5, -0.1), noise_scale=(0.2, 0.1, 0.05),
+        pretrain="imitation", pretrain_steps=4000, imitation_batch=50, imitation_updates=4,
+    )
+    presets = {
+        "thesis": {},
+        "cpu": dict(num_envs=16, unroll_length=4, updates_per_iteration=4, batch_size=256, buffer_size=200_000,
+                    tau=0.005, total_steps=160_000, pretrain_steps=80_000, imitation_batch=256, imitation_updates=16,
+                    imitation_weight=1.0, learning_starts=2000, noise_end_factor=0.2),
+        "fast": dict(num_envs=1024, unroll_length=4, updates_per_iteration=32, batch_size=1024,
+                     buffer_size=1_000_000, tau=0.005, total_steps=8_000_000, pretrain_steps=4_000_000,
+                     imitation_batch=1024, imitation_updates=32, imitation_weight=1.0, learning_starts=10_000,
+                     noise_end_factor=0.2),
+    }
+    return base, presets
 
 
 def distribute(config: DDPGConfig, name: str) -> DDPGConfig:

@@ -60,6 +60,7 @@ class Collected(NamedTuple):
         the HER copies kept); None where every row is stored ('steps').
       sums: ``[]`` sums over this device's finished episodes: ``episodes``, ``episode_return``,
         ``episode_length`` and every per-lane env metric.
+      labels: ``[b, N, A]`` a teacher's actions for the rows' states ('steps' with a teacher), else None.
     """
 
     env_state: State
@@ -67,6 +68,7 @@ class Collected(NamedTuple):
     rows: Transition
     mask: jax.Array | None
     sums: dict[str, jax.Array]
+    labels: jax.Array | None = None
 
 
 class Acting(NamedTuple):
@@ -77,7 +79,9 @@ class Acting(NamedTuple):
       policy: ``(lane_ids [b], actor params, obs stats, factor or None) -> LanePolicy``:
         ``clip(μ(x) + f·ω, −1, 1)`` (Eq. 3.7) with ``x`` the normalised observation.
       explore: the same as a function ``(key, lane_ids, params, stats, obs, noise, factor)``.
-      collect: ``(key, lane_ids [b], policy, State [b], NoiseState [b]) -> Collected``.
+      collect: ``(key, lane_ids [b], policy, State [b], NoiseState [b], teacher=None) -> Collected``;
+        ``teacher(key, State [b], action [b, A]) -> (executed action, label)`` ('steps' only, the
+        imitation stage of :mod:`~jaxrl_robot.agents.ddpg.imitation`) labels every visited state.
       gather: ``(rows [b, N], mask [b, N] | None) -> (rows [R], mask [R] | None)`` with
         ``R = B · N`` over every device: time-major in global lane order (rows of one time step
         together), or lane-major with HER (an episode's rows and their copies together).
@@ -212,13 +216,18 @@ def make_acting(
         rows, mask = jax.tree.map(lambda x: x.reshape((b, -1) + x.shape[3:]), (tr, mask))
         return Collected(final, nstate, rows, mask, sums)
 
-    def run_steps(key: jax.Array, lane_ids: jax.Array, policy: LanePolicy, s: State, nstate: NoiseState) -> Collected:
-        """``unroll_length`` steps of the auto-resetting lanes ``lane_ids [b]``."""
+    def run_steps(
+        key: jax.Array, lane_ids: jax.Array, policy: LanePolicy, s: State, nstate: NoiseState, teacher: Any = None
+    ) -> Collected:
+        """``unroll_length`` steps of the auto-resetting lanes ``lane_ids [b]`` (labelled by ``teacher``)."""
         b = lane_ids.shape[0]
 
         def body(carry, k):
             s, nstate = carry
             a, nstate = policy(k, s.obs, nstate)
+            label = ()
+            if teacher is not None:
+                a, label = teacher(jax.random.fold_in(k, 1), s, a)
             ns = batched_env.step(s, a)
             done = ns.done.astype(jnp.float32)
             term = terminal(ns)
@@ -228,15 +237,20 @@ def make_acting(
                   "episode_length": jnp.sum(done * ns.info["episode_length"])}
             for name, v in lane_metrics(ns, b).items():
                 ep[name] = jnp.sum(done * v)
-            return (ns, nstate), (tr, ep)
+            return (ns, nstate), (tr, ep, label)
 
-        (s, nstate), (traj, ep) = jax.lax.scan(body, (s, nstate), jax.random.split(key, config.unroll_length))
-        return Collected(s, nstate, _lane_major(traj), None, jax.tree.map(jnp.sum, ep))
+        (s, nstate), (traj, ep, labels) = jax.lax.scan(body, (s, nstate), jax.random.split(key, config.unroll_length))
+        labels = _lane_major(labels) if teacher is not None else None
+        return Collected(s, nstate, _lane_major(traj), None, jax.tree.map(jnp.sum, ep), labels)
 
-    def collect(key: jax.Array, lane_ids: jax.Array, policy: LanePolicy, s: State, nstate: NoiseState) -> Collected:
+    def collect(
+        key: jax.Array, lane_ids: jax.Array, policy: LanePolicy, s: State, nstate: NoiseState, teacher: Any = None
+    ) -> Collected:
         if config.schedule == "episodes":
+            if teacher is not None:
+                raise ValueError("a teacher needs schedule='steps'")
             return run_episodes(key, lane_ids, policy, nstate)
-        return run_steps(key, lane_ids, policy, s, nstate)
+        return run_steps(key, lane_ids, policy, s, nstate, teacher)
 
     time_major = her is None
 

@@ -9,10 +9,11 @@ from envs_mjx.config import ConfigError, check_choice, check_range
 from jaxrl_robot.agents.ddpg.networks import OUTPUTS
 from jaxrl_robot.replay.her import STRATEGIES
 
-__all__ = ["NOISES", "SCHEDULES", "DDPGConfig"]
+__all__ = ["NOISES", "PRETRAINS", "SCHEDULES", "DDPGConfig"]
 
 SCHEDULES = ("episodes", "steps")
 NOISES = ("gaussian", "ou")
+PRETRAINS = ("none", "imitation")
 
 
 @dataclass(frozen=True)
@@ -155,6 +156,34 @@ class DDPGConfig:
     ``policy_delay`` for the actor (updates skipped before ``learning_starts`` leave the end factor
     slightly higher).  Smaller late steps keep the policy from drifting away late in training.
     1: constant learning rates (Algorithm 1)."""
+    pretrain: str = "none"
+    """'none', or 'imitation' (thesis §6.1.2): for the first ``pretrain_steps`` env steps the actor
+    fits the env's expert (``env.expert(state)``) on the states the lanes visit — mean squared
+    error on mini-batches of ``imitation_batch`` pairs from a memory of the latest
+    ``imitation_buffer`` pairs, ``imitation_updates`` Adam steps per iteration, no exploration
+    noise — while the critic learns from the transitions as in DDPG and the targets follow; then
+    DDPG (or TD3) fine-tunes from those weights.  Needs the 'steps' schedule and an env with
+    ``expert``."""
+    pretrain_steps: int = 4000
+    """'imitation': env steps (all lanes) of the imitation stage, counted in ``total_steps``; equal to
+    ``total_steps``, the whole run imitates (an imitation-only policy)."""
+    imitation_updates: int = 4
+    """'imitation': actor updates on the expert's actions per iteration."""
+    imitation_batch: int = 50
+    """'imitation': (state, expert action) pairs per actor update (50 in the thesis)."""
+    imitation_lr: float = 1e-3
+    """'imitation': Adam step size of the actor's imitation updates."""
+    imitation_buffer: int = 100_000
+    """'imitation': pairs kept (the latest), sampled uniformly for the actor's updates."""
+    imitation_weight: float = 0.0
+    """'imitation': after the stage, the actor keeps taking its imitation updates on the expert's labels
+    of the visited states, with the step size scaled by this weight, between its DDPG updates (a
+    behaviour-cloning anchor in the manner of DDPG from demonstrations, Nair et al. 2018); 0: plain
+    DDPG/TD3 fine-tuning, as in the thesis."""
+    expert_share: float = 0.0
+    """'imitation': probability that a lane's step executes the expert's action instead of the
+    actor's at the start of the stage, falling linearly to 0 at its end (DAgger's β); 0: the actor
+    drives every visited state, as in the thesis."""
     distributed: bool = False
     """Distributed DDPG (thesis §4.2, Algorithms 4-6): sync_workers synchronous workers share the
     num_envs lanes, act with the latest parameters, each sample its own prioritised mini-batch of
@@ -191,6 +220,7 @@ class DDPGConfig:
     def validate(self) -> DDPGConfig:
         """Raise ``ConfigError`` naming the first invalid field; return self."""
         check_choice("schedule", self.schedule, SCHEDULES)
+        check_choice("pretrain", self.pretrain, PRETRAINS)
         for name in ("epochs", "cycles_per_epoch", "updates_per_cycle", "total_steps", "unroll_length",
                      "updates_per_iteration", "num_envs", "batch_size", "buffer_size"):
             check_range(name, getattr(self, name), 1)
@@ -242,7 +272,33 @@ class DDPGConfig:
             raise ConfigError(f"termination_metric={self.termination_metric!r} must be empty or a metric name")
         if self.distributed:
             self._validate_workers()
+        if self.pretrain != "none":
+            self._validate_pretrain()
         return self
+
+    @property
+    def pretrain_iterations(self) -> int:
+        """Iterations of the imitation stage (0 without ``pretrain``)."""
+        if self.pretrain == "none":
+            return 0
+        return min(self.iterations, -(-self.pretrain_steps // (self.lanes * self.unroll_length)))
+
+    def _validate_pretrain(self) -> None:
+        """The imitation fields (thesis §6.1.2)."""
+        check_choice("pretrain", self.pretrain, PRETRAINS)
+        if self.schedule != "steps":
+            raise ConfigError(f"pretrain={self.pretrain!r} needs schedule='steps' (got {self.schedule!r})")
+        if self.distributed:
+            raise ConfigError(f"pretrain={self.pretrain!r} is not available with distributed=True")
+        for name in ("pretrain_steps", "imitation_updates", "imitation_batch", "imitation_buffer"):
+            check_range(name, getattr(self, name), 1)
+            if int(getattr(self, name)) != getattr(self, name):
+                raise ConfigError(f"{name}={getattr(self, name)!r} must be an integer")
+        if self.pretrain_steps > self.total_steps:
+            raise ConfigError(f"pretrain_steps={self.pretrain_steps} must be at most total_steps ({self.total_steps})")
+        check_range("imitation_lr", self.imitation_lr, 0.0, lo_open=True)
+        check_range("expert_share", self.expert_share, 0.0, 1.0)
+        check_range("imitation_weight", self.imitation_weight, 0.0)
 
     def _validate_workers(self) -> None:
         """The distributed fields (thesis §4.2)."""

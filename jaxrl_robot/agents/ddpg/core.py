@@ -24,6 +24,7 @@ from jaxrl_robot import parallel
 from jaxrl_robot.agents.common import cast_like
 from jaxrl_robot.agents.ddpg.acting import Acting, make_acting, make_noise_for
 from jaxrl_robot.agents.ddpg.config import DDPGConfig
+from jaxrl_robot.agents.ddpg.imitation import Imitation, make_imitation
 from jaxrl_robot.agents.ddpg.learner import Learner, make_learner, make_networks, make_optimizer
 from jaxrl_robot.agents.ddpg.losses import linear_noise_factor
 from jaxrl_robot.agents.ddpg.networks import DDPGActor, DDPGCritic
@@ -66,6 +67,8 @@ class DDPGState:
       key: PRNG key of the run.
       iteration: ``[] int32`` iterations (cycles or unroll phases) done.
       updates: ``[] int32`` gradient updates done.
+      demos, imitation_opt: the expert's pairs and the actor's imitation Adam state
+        (``pretrain='imitation'``, :mod:`~jaxrl_robot.agents.ddpg.imitation`; ``()`` otherwise).
     """
 
     actor_params: Any
@@ -81,6 +84,8 @@ class DDPGState:
     key: jax.Array
     iteration: jax.Array
     updates: jax.Array
+    demos: Any
+    imitation_opt: Any
 
 
 class Setup(NamedTuple):
@@ -96,6 +101,7 @@ class Setup(NamedTuple):
       acting, learner: see :mod:`~jaxrl_robot.agents.ddpg.acting` and ``learner``.
       updates_per_iteration: ``updates_per_cycle`` ('episodes') or ``updates_per_iteration``.
       steps_per_iteration: env steps of every lane in one iteration.
+      imitation: the imitation stage (``pretrain='imitation'``) or None.
     """
 
     config: DDPGConfig
@@ -115,6 +121,7 @@ class Setup(NamedTuple):
     learner: Learner
     updates_per_iteration: int
     steps_per_iteration: int
+    imitation: Imitation | None
 
 
 def setup(config: DDPGConfig, env: Env, mesh: jax.sharding.Mesh | None, iterations_per_update: int | None) -> Setup:
@@ -176,6 +183,7 @@ def setup(config: DDPGConfig, env: Env, mesh: jax.sharding.Mesh | None, iteratio
         local_lanes=local_lanes, obs_size=obs_size, action_size=action_size, actor=actor, critic=critic,
         actor_tx=actor_tx, critic_tx=critic_tx, replay=replay, acting=acting, learner=learner,
         updates_per_iteration=per_iteration, steps_per_iteration=config.lanes * steps,
+        imitation=make_imitation(config, env, actor, acting.norm),
     )
 
 
@@ -196,6 +204,7 @@ def init_state(s: Setup, key: jax.Array) -> DDPGState:
         next_obs=jnp.zeros((s.obs_size,), jnp.float32),
         terminated=jnp.zeros((), jnp.float32),
     )
+    demos, imitation_opt = s.imitation.init(actor_params, s.obs_size, s.action_size) if s.imitation else ((), ())
     lanes = parallel.P(parallel.LANES)
     env_state, noise_state = parallel.shard_lanes(s.acting.reset, s.mesh, (lanes,), (lanes, lanes))(
         jax.random.split(k_env, s.config.num_envs)
@@ -214,6 +223,8 @@ def init_state(s: Setup, key: jax.Array) -> DDPGState:
         key=k_run,
         iteration=jnp.zeros((), jnp.int32),
         updates=jnp.zeros((), jnp.int32),
+        demos=demos,
+        imitation_opt=imitation_opt,
     )
 
 

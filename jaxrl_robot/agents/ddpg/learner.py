@@ -100,9 +100,10 @@ class Learner(NamedTuple):
     """The update of one DDPG configuration.
 
     Attributes:
-      learn: ``(state, key, n, workers) -> (state, metric sums, count)``: ``n`` updates if the
-        replay holds enough transitions (else none; ``count`` is ``n`` or 0).  ``state`` has the
-        fields of ``DDPGState``.
+      learn: ``(state, key, n, workers, actor_on=None) -> (state, metric sums, count)``: ``n``
+        updates if the replay holds enough transitions (else none; ``count`` is ``n`` or 0).
+        ``state`` has the fields of ``DDPGState``.  ``actor_on`` (``[] bool``): False keeps the
+        actor as it is while the critic learns and the targets follow (the imitation stage).
       priorities: ``(actor params, critic params, stats, rows [N]) -> [N]``: the priority
         ``min(|δ|, priority_clip)`` of raw rows under one network copy, with
         ``δ = y − Q(s, a)`` and ``y = r + γ (1 − d) Q(s', μ(s'))`` from that copy alone (a
@@ -173,9 +174,12 @@ def make_learner(
         td = target(actor_p, critic_p, tr, None)[None] - q_values(critic_p, tr.obs, tr.action)
         return priority_error(td if config.twin_critics else td[0])
 
-    def learn_step(stats: RunningStats, workers: Workers, carry: tuple, xs: tuple) -> tuple[tuple, dict]:
+    def learn_step(
+        stats: RunningStats, workers: Workers, actor_on: jax.Array | None, carry: tuple, xs: tuple
+    ) -> tuple[tuple, dict]:
         """One update; ``xs = (key, index)`` with ``index`` the run's count of updates before this one
-        (the actor and targets move when ``(index + 1) % policy_delay == 0``)."""
+        (the actor and targets move when ``(index + 1) % policy_delay == 0``; where ``actor_on`` is
+        False only the targets move)."""
         key, index = xs
         actor_p, critic_p, t_actor, t_critic, a_opt, c_opt, buf = carry
         k_sample, k_smooth = jax.random.split(key) if config.target_noise > 0 else (key, key)
@@ -219,9 +223,19 @@ def make_learner(
             aloss, q = workers.map(lambda obs: a_loss(args[0], obs))(tr.obs)
             return args, workers.mean(aloss), q
 
+        def follow(args: tuple) -> tuple[tuple, jax.Array, jax.Array]:
+            """No actor step, soft target updates (the actor learns elsewhere: imitation)."""
+            (actor_p, t_actor, t_critic, a_opt), aloss, q = hold(args)
+            t_actor = soft_update(t_actor, actor_p, config.tau)
+            return (actor_p, t_actor, soft_update(t_critic, critic_p, config.tau), a_opt), aloss, q
+
         args = (actor_p, t_actor, t_critic, a_opt)
-        if config.policy_delay > 1:
-            args, aloss, q = jax.lax.cond((index + 1) % config.policy_delay == 0, actor_step, hold, args)
+        move = (index + 1) % config.policy_delay == 0
+        if actor_on is not None:
+            branch = jnp.where(move, jnp.where(actor_on, 1, 2), 0)
+            args, aloss, q = jax.lax.switch(branch, (hold, actor_step, follow), args)
+        elif config.policy_delay > 1:
+            args, aloss, q = jax.lax.cond(move, actor_step, hold, args)
         else:
             args, aloss, q = actor_step(args)
         actor_p, t_actor, t_critic, a_opt = args
@@ -232,13 +246,15 @@ def make_learner(
                "td_abs": workers.mean(workers.map(lambda d: jnp.mean(jnp.abs(d)))(td))}
         return (actor_p, critic_p, t_actor, t_critic, a_opt, c_opt, buf), out
 
-    def learn(state: Any, key: jax.Array, n: int, workers: Workers) -> tuple[Any, dict[str, jax.Array], jax.Array]:
+    def learn(
+        state: Any, key: jax.Array, n: int, workers: Workers, actor_on: jax.Array | None = None
+    ) -> tuple[Any, dict[str, jax.Array], jax.Array]:
         carry = (state.actor_params, state.critic_params, state.target_actor_params, state.target_critic_params,
                  state.actor_opt, state.critic_opt, state.replay)
 
         def run(c):
             xs = (jax.random.split(key, n), state.updates + jnp.arange(n, dtype=jnp.int32))
-            c, out = jax.lax.scan(lambda c_, x: learn_step(state.obs_stats, workers, c_, x), c, xs)
+            c, out = jax.lax.scan(lambda c_, x: learn_step(state.obs_stats, workers, actor_on, c_, x), c, xs)
             return c, jax.tree.map(jnp.sum, out), jnp.asarray(n, jnp.float32)
 
         def skip(c):

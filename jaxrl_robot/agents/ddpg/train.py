@@ -34,6 +34,7 @@ import functools
 from collections.abc import Callable
 
 import jax
+import jax.numpy as jnp
 from brax.envs.base import Env
 
 from jaxrl_robot import parallel
@@ -72,21 +73,41 @@ def make_trainer(
         return make_distributed_trainer(config, env, mesh=mesh, iterations_per_update=iterations_per_update)
     s = core.setup(config, env, mesh, iterations_per_update)
 
+    imitation = s.imitation
+
     def iteration(state: DDPGState, lane_ids: jax.Array) -> tuple[DDPGState, tuple]:
-        """Act in this device's lanes ``lane_ids [b]``, store every device's rows, then learn."""
-        key, k_act, k_learn = jax.random.split(state.key, 3)
-        policy = s.acting.policy(lane_ids, state.actor_params, state.obs_stats,
-                                 core.noise_factor(config, state.iteration))
-        got = s.acting.collect(k_act, lane_ids, policy, state.env_state, state.noise_state)
+        """Act in this device's lanes ``lane_ids [b]``, store every device's rows, then learn (in the
+        imitation stage the actor fits the expert's labels instead of maximising Q)."""
+        key, k_act, k_learn, k_imitate = jax.random.split(state.key, 4)
+        factor = core.noise_factor(config, state.iteration)
+        imitating, teacher = None, None
+        if imitation is not None:
+            imitating = imitation.active(state.iteration)
+            factor = jnp.where(imitating, 0.0, 1.0 if factor is None else factor)  # no noise while imitating
+            teacher = imitation.teacher(lane_ids, state.iteration)
+        policy = s.acting.policy(lane_ids, state.actor_params, state.obs_stats, factor)
+        got = s.acting.collect(k_act, lane_ids, policy, state.env_state, state.noise_state, teacher)
         rows, mask = s.acting.gather(got.rows, got.mask)
         state = core.store(s, state.replace(env_state=got.env_state, noise_state=got.noise_state), rows, mask)
-        state, sums, count = s.learner.learn(state, k_learn, s.updates_per_iteration, SINGLE)
+        extra = ()
+        if imitation is not None:
+            labels, _ = s.acting.gather(got.labels, None)
+            actor_p, opt, demos, loss = imitation.learn(k_imitate, state.actor_params, state.imitation_opt,
+                                                        state.demos, state.obs_stats, rows.obs, labels,
+                                                        state.iteration)
+            state = state.replace(actor_params=actor_p, imitation_opt=opt, demos=demos)
+            extra = loss
+        actor_on = None if imitating is None else ~imitating
+        state, sums, count = s.learner.learn(state, k_learn, s.updates_per_iteration, SINGLE, actor_on)
         state = state.replace(key=key, iteration=state.iteration + 1)
-        return state, (sums, count, got.sums, ())
+        return state, (sums, count, got.sums, extra)
 
     def chunk_fn(state: DDPGState) -> tuple[DDPGState, Metrics]:
         lane_ids = parallel.global_lane_ids(s.local_lanes)
-        state, metrics, _ = core.run_chunk(s, state, lambda st: iteration(st, lane_ids))
+        state, metrics, extra = core.run_chunk(s, state, lambda st: iteration(st, lane_ids))
+        if imitation is not None:
+            # mean over the chunk's imitation updates (NaN once the stage is over, without an anchor)
+            metrics["imitation_loss"] = jnp.nanmean(extra) if extra.size else jnp.nan
         return state, metrics
 
     specs = core.state_specs()

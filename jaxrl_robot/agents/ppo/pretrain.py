@@ -22,6 +22,7 @@ from brax.envs.base import State
 
 from jaxrl_robot import parallel
 from jaxrl_robot.acting import per_lane_keys
+from jaxrl_robot.imitation import imitation_loss
 from jaxrl_robot.networks import gaussian_entropy
 
 __all__ = ["action_search", "imitation_loss", "make_imitation_update", "model_reward_of"]
@@ -61,15 +62,6 @@ def action_search(
     best = jnp.argmax(rewards, axis=1)
     action = jnp.take_along_axis(candidates, best[:, None, None], axis=1)[:, 0]
     return action, jnp.max(rewards, axis=1)
-
-
-def imitation_loss(mean: jax.Array, target: jax.Array, mask: jax.Array, count: jax.Array) -> jax.Array:
-    """``Σ_i mask_i ‖μ(s_i) − a*_i‖² / count``: ``mean, target [B, A]``, ``mask [B]``, ``count []``.
-
-    ``count`` is the number of examples in the whole mini-batch (over every device, at least 1),
-    so that summing this loss's gradients over devices gives the gradient of the global mean.
-    """
-    return jnp.sum(mask * jnp.sum((mean - target) ** 2, axis=-1)) / jnp.maximum(count, 1.0)
 
 
 def make_imitation_update(
