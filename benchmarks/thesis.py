@@ -131,8 +131,8 @@ ROWS: tuple[Row, ...] = (
     Row("5.1", "ppo-path", "Distributed PPO, path reward", "ppo", (*ARM, "--reward", "path"), 91, "arm"),
     *[r for r in _tracking_rows() if r.table == "5.4-5.7"],
     *[Row("6.2-6.3", f"{algo}-{road.replace(' ', '-')}", f"{algo.upper()} with imitation pre-training, {road}",
-          None, (), thesis, "driving", missing="DDPG/TD3 pre-trained by imitation of the racecar's expert and the "
-          "20-lap road evaluation are not built yet (issue 14)")
+          None, (), thesis, "driving", missing="this runner does not drive the racing rows yet: "
+          "`python -m benchmarks.racing` trains DDPG / TD3 after imitation and drives the 20 laps per road")
       for algo, results in (("ddpg", ((18, 2, 0, 2.65), (16, 2, 2, 2.55), (17, 2, 1, 2.6), (18, 1, 1, 2.85))),
                             ("td3", ((18, 2, 0, 2.6), (17, 2, 1, 2.65), (18, 1, 1, 2.9), (17, 2, 1, 2.7))))
       for road, thesis in zip(("training road", "test road 1", "test road 2", "test road 3"), results, strict=True)],

@@ -45,3 +45,14 @@ def test_precision_summary_by_hand():
     got = precision_summary({"closest_distance": np.array([0.004, 0.012, 0.03, 0.07])})
     assert (got["success_5cm"], got["success_2cm"], got["success_1cm"]) == (0.75, 0.5, 0.25)
     assert got["closest_distance_median"] == pytest.approx(0.021) and got["closest_distance_max"] == 0.07
+
+
+def test_race_evaluation_counts_laps_per_road():
+    """``racecar`` is evaluated by laps on every road: a policy that only brakes stalls on each lap."""
+    from envs_mjx.racecar import RaceCar
+
+    env = RaceCar(n_opponents=2)
+    out = evaluate(jax.random.PRNGKey(0), env, lambda obs: jnp.array([0.0, -1.0, 1.0]) + 0.0 * obs[..., :3], 2)
+    assert out["kind"] == "racing" and out["laps_per_road"] == 2 and out["success_rate"] == 0.0
+    for road in ("train", "test1", "test2", "test3"):
+        assert out[f"{road}/stalled"] == 2 and out[f"{road}/success"] == 0 and out[f"{road}/collision"] == 0

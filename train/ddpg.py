@@ -14,6 +14,14 @@ Examples (the rows of thesis Table 3.1 and the DDPG rows of Tables 4.3-4.5)::
     python -m train.ddpg --env unicycle --trajectory ellipse --preset thesis
     python -m train.ddpg --resume runs/ddpg-arm7-20260101-120000
 
+Racing (thesis ch. 6): the ``racecar`` preset imitates the env's expert driver first
+(``--pretrain imitation``, the default there; ``--pretrain none`` trains from scratch), then
+fine-tunes with DDPG (``train.td3``: TD3) under the OU noise of Table 6.1; the evaluation drives
+``--eval-episodes`` laps on each road::
+
+    python -m train.ddpg --env racecar --eval-episodes 20
+    python -m train.td3 --env racecar --pretrain-steps 2000000
+
 Distributed DDPG (thesis §4.2, Algorithms 4-6) is ``--distributed``: the preset's distributed
 variant (``thesis``: 4 synchronous workers with 32 transitions each per update, 4 collecting
 workers fetching the parameters every 5 steps, a shared memory of 200 000), which

@@ -16,7 +16,7 @@ import pytest
 import envs_mjx
 from envs_mjx import racetrack
 from envs_mjx.config import ConfigError
-from envs_mjx.racecar import OBS_SLICES, RaceCar, expert_action, race_reward
+from envs_mjx.racecar import LAP_OUTCOMES, OBS_SLICES, RaceCar, expert_action, lap_summary, make_lap_test, race_reward
 
 ANGLES = np.deg2rad(np.array(envs_mjx.racecar.TORCS_RANGEFINDER_ANGLES, np.float64))
 
@@ -225,48 +225,57 @@ def test_action_maps():
 
 
 @pytest.fixture(scope="module")
-def expert_laps(env):
-    """Two laps per road (random start points), the four roads stacked and vmapped through one compile."""
-    names = ["train", "test1", "test2", "test3"]
-    roads = [env.road] + [RaceCar(road=n).road for n in names[1:]]
-    stacked = jax.tree.map(lambda *x: jnp.stack(x).repeat(2, axis=0), *roads)
-    keys = jax.random.split(jax.random.PRNGKey(7), 8)
-    driver = RaceCar()  # random starts
-
-    def run(roads, keys):
-        def reset(road, key):
-            return driver.on_road(road).reset(key)
-
-        def step(road, s):
-            e = driver.on_road(road)
-            return e.step(s, expert_action(e, s))
-
-        s = jax.vmap(reset)(roads, keys)
-
-        def cond(c):
-            return (c[2] < 1400) & ~jnp.all(c[1])
-
-        def body(c):
-            s, done, t = c
-            n = jax.vmap(step)(roads, s)
-            n = jax.tree.map(lambda a, b: jnp.where(done.reshape(done.shape + (1,) * (a.ndim - 1)), a, b), s, n)
-            return n, done | (n.done > 0), t + 1
-
-        s, _, _ = jax.lax.while_loop(cond, body, (s, jnp.zeros(8, bool), 0))
-        return s.metrics
-
-    metrics = jax.jit(run)(stacked, keys)
-    return names, {k: np.asarray(v) for k, v in metrics.items()}
+def expert_laps():
+    """Two laps per road (random start points) through :func:`make_lap_test`: one vmapped program."""
+    test = make_lap_test(RaceCar(), laps=2)
+    return tuple(racetrack.ROADS), {k: np.asarray(v) for k, v in jax.jit(lambda k: test(expert_action, k))(
+        jax.random.PRNGKey(7)).items()}  # fmt: skip
 
 
 def test_expert_finishes_laps_on_every_road(expert_laps):
     names, m = expert_laps
-    assert (m["success"] == 1.0).all(), dict(zip(np.repeat(names, 2), m["success"], strict=True))
-    assert (m["out_count"] == 0).all() and (m["backwards"] == 0).all()
-    assert m["collisions"].sum() <= 2  # measured: none
+    assert (m["success"] == 1.0).all(), dict(zip(names, m["success"].tolist(), strict=True))
+    assert (m["out_of_track"] == 0).all() and (m["stalled"] == 0).all()
+    assert m["collision"].sum() <= 2  # measured: none
     assert (m["overtakes"] >= 3).all()  # it passes the slower cars (9 start ahead of it)
-    lap_speed = np.repeat([float(racetrack.make_road(n).length) for n in names], 2) / m["time"]
-    assert (lap_speed > 15.0).all()  # > 54 km/h average
+    lengths = np.array([float(racetrack.make_road(n).length) for n in names])[:, None]
+    np.testing.assert_allclose(m["progress"], np.broadcast_to(lengths, m["progress"].shape), rtol=0.01)  # one lap, then the episode ends
+    assert (m["speed"] > 15.0).all()  # > 54 km/h average
+
+
+def test_lap_outcomes_of_a_car_that_never_drives():
+    """Full brake from a standing start: every lap is 'stalled' (too slow), none a success; the outcomes
+    partition the laps, and the summary counts them per road."""
+    test = make_lap_test(RaceCar(road="test1"), laps=3, roads=("test1", "train"))
+    brake = jnp.array([0.0, -1.0, 1.0])
+    m = jax.jit(lambda k: test(lambda e, s: brake, k))(jax.random.PRNGKey(0))
+    total = sum(np.asarray(m[k]) for k in LAP_OUTCOMES)
+    np.testing.assert_array_equal(total, np.ones((2, 3)))
+    np.testing.assert_array_equal(m["stalled"], np.ones((2, 3)))
+    summary = lap_summary(m, ("test1", "train"))
+    assert summary["train"]["stalled"] == 3 and summary["test1"]["success"] == 0 and summary["train"]["laps"] == 3
+    assert summary["train"]["speed_kmh"] < 1.0
+
+
+def test_opponent_closing_speeds_by_hand(start):
+    """With ``opponent_speeds``, each sector also reports how fast we close on the car it sees."""
+    env = RaceCar(random_start=False, opponent_speeds=True)
+    assert env.observation_size == 96
+    n = env.config.n_opponents
+    progress = jnp.asarray([25.0] + [600.0 + 30 * i for i in range(n - 1)], jnp.float32)
+    speed = jnp.asarray([12.0] + [0.0] * (n - 1), jnp.float32)
+    scene = _scene(start, vel=[20.0, 0.0, 0.0], opp_progress=progress, opp_offset=jnp.zeros(n), opp_speed=speed)
+    sen = env.sensors(scene.pipeline_state)
+    ahead = int(np.argmin(np.asarray(sen["opponents"])))
+    assert 16 <= ahead <= 19 and abs(float(sen["opponents"][ahead]) - 25.0) < 1.0  # ahead, the road bends a little
+    # nearly straight ahead: closing speed ≈ 20 - 12 m/s
+    assert float(sen["opponent_speeds"][ahead]) == pytest.approx(8.0, abs=0.3)
+    others = np.delete(np.asarray(sen["opponent_speeds"]), ahead)
+    seen = np.delete(np.asarray(sen["opponents"]), ahead) < 200.0
+    assert (others[~seen] == 0.0).all()
+    obs = env.observe(scene.pipeline_state)
+    np.testing.assert_allclose(obs[60:], sen["opponent_speeds"] / env.config.speed_scale, atol=1e-6)
+    np.testing.assert_allclose(obs[:60], RaceCar(random_start=False).observe(scene.pipeline_state), atol=1e-6)
 
 
 # ------------------------------------------------------- robustness, recompiles
