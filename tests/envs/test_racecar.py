@@ -239,7 +239,8 @@ def test_expert_finishes_laps_on_every_road(expert_laps):
     assert m["collision"].sum() <= 2  # measured: none
     assert (m["overtakes"] >= 3).all()  # it passes the slower cars (9 start ahead of it)
     lengths = np.array([float(racetrack.make_road(n).length) for n in names])[:, None]
-    np.testing.assert_allclose(m["progress"], np.broadcast_to(lengths, m["progress"].shape), rtol=0.01)  # one lap, then the episode ends
+    # one lap, then the episode ends
+    np.testing.assert_allclose(m["progress"], np.broadcast_to(lengths, m["progress"].shape), rtol=0.01)
     assert (m["speed"] > 15.0).all()  # > 54 km/h average
 
 
