@@ -283,7 +283,8 @@ def ddpg_env_overrides(name: str, env_name: str) -> dict:
     """
     if resolve_preset(name) not in ("cpu", "fast"):
         return {}
-    sharper = {"unicycle": {"a_p": 100.0}, "scara": {"reward_coef": 50.0}, "racecar": {"opponent_speeds": True}}
+    sharper = {"unicycle": {"a_p": 100.0}, "scara": {"reward_coef": 50.0},
+               "racecar": {"opponent_speeds": True, "distance_scale": "log"}}  # fmt: skip
     return sharper.get(env_name.split(":")[-1], {})
 
 
@@ -389,8 +390,8 @@ def _racing_preset() -> tuple[DDPGConfig, dict]:
         "cpu": dict(num_envs=16, unroll_length=4, updates_per_iteration=4, batch_size=256, buffer_size=200_000,
                     tau=0.005, total_steps=160_000, pretrain_steps=80_000, imitation_batch=256, imitation_updates=16,
                     imitation_weight=1.0, learning_starts=2000, noise_end_factor=0.2),
-        "fast": dict(num_envs=1024, unroll_length=4, updates_per_iteration=32, batch_size=1024,
-                     buffer_size=1_000_000, tau=0.005, total_steps=8_000_000, pretrain_steps=4_000_000,
+        "fast": dict(num_envs=1024, unroll_length=4, updates_per_iteration=32, batch_size=1024, normalize_obs=True,
+                     buffer_size=1_000_000, tau=0.005, total_steps=24_000_000, pretrain_steps=6_000_000,
                      imitation_batch=1024, imitation_updates=32, imitation_weight=1.0, learning_starts=10_000,
                      noise_end_factor=0.2),
     }

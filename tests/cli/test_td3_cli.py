@@ -53,3 +53,34 @@ def test_tracking_presets_sharpen_the_reward_and_env_config_wins(cli):
     assert env_of("--env", "unicycle", "--preset", "cpu", "--env-config", "a_p=5").config.a_p == 5.0
     assert env_of("--env", "scara", "--preset", "cpu").config.reward_coef == 50.0
     assert env_of("--env", "scara", "--preset", "thesis").config.reward_coef == 2.0
+
+
+def test_racing_presets_imitate_first():
+    """racecar: every preset imitates the expert first (thesis §6.1.2) with Table 6.1's OU noise; cpu and
+    fast add the opponents' closing speeds to the observation; ``--pretrain none`` trains from scratch."""
+    for preset in ("thesis", "cpu", "fast"):
+        cfg = td3_cli.parse(["--env", "racecar", "--preset", preset]).td3
+        assert cfg.pretrain == "imitation" and cfg.twin_critics and cfg.noise == "ou"
+        assert cfg.noise_mean == (0.0, 0.5, -0.1) and cfg.noise_reversion == (0.8, 1.0, 1.0)
+        assert cfg.noise_scale == (0.2, 0.1, 0.05) and 0 < cfg.pretrain_steps < cfg.total_steps
+    assert ddpg_cli.parse(["--env", "racecar", "--pretrain", "none"]).ddpg.pretrain == "none"
+    env_of = lambda *argv: ddpg_cli.CLI.build(ddpg_cli.parse(list(argv)))[0]  # noqa: E731
+    assert env_of("--env", "racecar", "--preset", "cpu").observation_size == 96
+    assert env_of("--env", "racecar", "--preset", "thesis").observation_size == 60
+
+
+def test_racing_run_resumes_through_the_imitation_stage_and_drives_laps(tmp_path):
+    run = ["--env", "racecar", "--preset", "cpu", "--total-steps", "512", "--pretrain-steps", "256", "--num-envs",
+           "4", "--unroll-length", "4", "--updates-per-iteration", "1", "--learning-starts", "64", "--buffer-size",
+           "1000", "--imitation-batch", "16", "--imitation-updates", "1", "--imitation-buffer", "500", "--chunks",
+           "2", "--eval-episodes", "1", "--env-config", "n_opponents=2", "max_steps=200", *TINY]  # fmt: skip
+    assert td3_cli.main([*run, "--out", str(tmp_path), "--stop-after-steps", "256"]) == 0
+    (run_dir,) = glob.glob(str(tmp_path / "td3-racecar-*"))
+    assert td3_cli.main(["--resume", run_dir]) == 0
+    result = json.load(open(os.path.join(run_dir, "eval.json")))
+    assert result["kind"] == "racing" and result["env_steps"] == 512 and result["laps_per_road"] == 1
+    for road in ("train", "test1", "test2", "test3"):
+        outcomes = sum(result[f"{road}/{k}"] for k in ("success", "collision", "out_of_track", "stalled"))
+        assert outcomes == 1
+    header = open(os.path.join(run_dir, "metrics.csv")).readline()
+    assert "imitation_loss" in header
