@@ -8,7 +8,8 @@ Each row of thesis Tables 3.1, 4.1, 4.3–4.5, 5.1, 5.4–5.7 and 6.2–6.3 is o
 ``train/`` (``python -m train.<algo> ...``, run in this process) per seed, with ``--preset``,
 ``--seed`` and a run directory of its own under ``--runs``.  Its figures come from the run's own
 evaluation (``eval.json``): success over 100 test episodes for the arm, the per-axis sum of
-|error| over one test episode from ``t = 0`` for tracking.  Tables 7.1–7.3 (the thesis's
+|error| over one test episode from ``t = 0`` for tracking, laps per road ending in success,
+collision, off the track or stalled for racing (20 laps on each of the four roads).  Tables 7.1–7.3 (the thesis's
 summaries) are drawn from those rows.  Rows whose algorithm or environment does not exist yet
 are listed as **missing** with the reason.
 
@@ -54,6 +55,11 @@ from jaxrl_robot import plots
 from jaxrl_robot.logging import read_csv
 
 ARM_GOAL = 95.0
+ROADS = ("train", "test1", "test2", "test3")
+RACING_THESIS = {  # per road: (success, collision, out of track, overtakes) of 20 laps, Tables 6.2 and 6.3
+    "ddpg": ((18, 2, 0, 2.65), (16, 2, 2, 2.55), (17, 2, 1, 2.6), (18, 1, 1, 2.85)),
+    "td3": ((18, 2, 0, 2.6), (17, 2, 1, 2.65), (18, 1, 1, 2.9), (17, 2, 1, 2.7)),
+}
 """Arm rows: success over 100 test episodes, % (every row)."""
 
 
@@ -130,12 +136,9 @@ ROWS: tuple[Row, ...] = (
     Row("5.1", "ppo-ordinary", "Distributed PPO, ordinary reward", "ppo", (*ARM, "--reward", "ordinary"), 82, "arm"),
     Row("5.1", "ppo-path", "Distributed PPO, path reward", "ppo", (*ARM, "--reward", "path"), 91, "arm"),
     *[r for r in _tracking_rows() if r.table == "5.4-5.7"],
-    *[Row("6.2-6.3", f"{algo}-{road.replace(' ', '-')}", f"{algo.upper()} with imitation pre-training, {road}",
-          None, (), thesis, "driving", missing="this runner does not drive the racing rows yet: "
-          "`python -m benchmarks.racing` trains DDPG / TD3 after imitation and drives the 20 laps per road")
-      for algo, results in (("ddpg", ((18, 2, 0, 2.65), (16, 2, 2, 2.55), (17, 2, 1, 2.6), (18, 1, 1, 2.85))),
-                            ("td3", ((18, 2, 0, 2.6), (17, 2, 1, 2.65), (18, 1, 1, 2.9), (17, 2, 1, 2.7))))
-      for road, thesis in zip(("training road", "test road 1", "test road 2", "test road 3"), results, strict=True)],
+    *[Row("6.2-6.3", algo, f"{algo.upper()} after imitation of the expert, 20 laps per road", algo,
+          ("--env", "racecar", "--eval-episodes", "20"), RACING_THESIS[algo], "driving")
+      for algo in ("ddpg", "td3")],
 )  # fmt: skip
 """Every row of the thesis's result tables (SPEC §R)."""
 
@@ -159,11 +162,16 @@ SMOKE = {  # budgets of seconds: the plumbing, not the numbers
     ("a2c", "arm"): ("--total-steps", "256", "--chunks", "2", "--eval-episodes", "4"),
     ("ppo", "arm"): ("--total-steps", "1024", "--chunks", "2", "--eval-episodes", "4"),
     ("ppo", "tracking"): ("--total-steps", "1024", "--chunks", "2"),
+    ("ddpg", "driving"): ("--total-steps", "256", "--pretrain-steps", "128", "--num-envs", "4", "--unroll-length",
+                          "4", "--learning-starts", "32", "--batch-size", "16", "--actor-hidden", "16",
+                          "--critic-hidden", "16", "--imitation-batch", "16", "--imitation-updates", "1",
+                          "--chunks", "2", "--eval-episodes", "1", "--env-config", "n_opponents=2", "max_steps=100"),
 }  # fmt: skip
 
 
 def smoke_args(row: Row) -> tuple[str, ...]:
-    return SMOKE[("a2c" if row.algo == "a3c" else row.algo, row.kind)]
+    algo = {"a3c": "a2c", "td3": "ddpg"}.get(row.algo, row.algo)
+    return SMOKE[(algo, row.kind)]
 
 
 def command(row: Row, preset: str, seed: int, smoke: bool) -> list[str]:
@@ -209,7 +217,16 @@ def row_figure(row: Row, seeds: list[dict]) -> dict[str, Any]:
     out: dict[str, Any] = {"seeds_done": len(done), "seeds": len(seeds)}
     if not done:
         return out
-    if row.kind == "arm":
+    if row.kind == "driving":  # successes per road; met: ≥ 19 of 20 (95 %) and ≤ 1 collision (5 %) on every seed
+        laps = float(done[0]["laps_per_road"])
+        vals = np.array([[s[f"{road}/success"] for road in ROADS] for s in done], float)
+        crashes = np.array([[s[f"{road}/collision"] for road in ROADS] for s in done], float)
+        goal = np.full(len(ROADS), 0.95 * laps)
+        met = (vals >= goal).all(0) & (crashes <= 0.05 * laps).all(0)
+        out.update(laps=laps, collisions=crashes.mean(0).tolist(),
+                   overtakes=[float(np.mean([s[f"{road}/overtakes"] for s in done])) for road in ROADS],
+                   speed_kmh=[float(np.mean([s[f"{road}/speed_kmh"] for s in done])) for road in ROADS])  # fmt: skip
+    elif row.kind == "arm":
         vals = np.array([[100.0 * s["success_rate"]] for s in done])
         goal = np.array([ARM_GOAL])
         met = vals.mean(0) >= goal
@@ -240,6 +257,10 @@ def table_markdown(table: str, results: list[dict], fig_dir: str, rel: str) -> l
     elif kind == "tracking":
         lines += ["| row | thesis x / y / θ-z | ours x | ours y | ours θ-z | seeds (x / y / θ-z) | goal | met | wall s "
                   "| command |", "|---|---|---:|---:|---:|---|---|---|---:|---|"]  # fmt: skip
+    elif kind == "driving":
+        lines += ["| row | road | thesis success / collision / out / overtakes | ours success | collisions | "
+                  "overtakes | km/h | seeds | met | wall s | command |",
+                  "|---|---|---|---:|---:|---:|---:|---|---|---:|---|"]  # fmt: skip
     else:
         lines += ["| row | thesis | ours | status |", "|---|---|---|---|"]
     curves: dict[str, list] = {}
@@ -257,7 +278,16 @@ def table_markdown(table: str, results: list[dict], fig_dir: str, rel: str) -> l
         per_seed = "; ".join(" / ".join(f"{v:.2f}" if kind == "tracking" else f"{v:.0f}" for v in s)
                              for s in fig["values"])  # fmt: skip
         seeds = f"{per_seed} ({fig['seeds_done']}/{fig['seeds']})"
-        if kind == "arm":
+        if kind == "driving":
+            for i, road in enumerate(ROADS):
+                thesis = " / ".join(f"{v:g}" for v in row["thesis"][i])
+                cell = _cell(fig["mean"][i], fig["std"][i], fig["met"][i], 1)
+                each = ", ".join(f"{v[i]:.0f}" for v in fig["values"])
+                lines.append(f"| {row['label'] if i == 0 else ''} | {road} | {thesis} | {cell} of {fig['laps']:.0f} | "
+                             f"{fig['collisions'][i]:.1f} | {fig['overtakes'][i]:.2f} | {fig['speed_kmh'][i]:.0f} | "
+                             f"{each} ({fig['seeds_done']}/{fig['seeds']}) | {'yes' if fig['met'][i] else 'no'} | "
+                             f"{fig['wall_s']:.0f} | {cmd if i == 0 else ''} |")  # fmt: skip
+        elif kind == "arm":
             cell = _cell(fig["mean"][0], fig["std"][0], fig["met"][0], 1)
             precise = " / ".join(f"{v:.1f}" for v in fig.get("precision", ())) or "—"
             lines.append(f"| {row['label']} | {row['thesis']} | {cell} | {seeds} | {'yes' if fig['met'][0] else 'no'} "
@@ -328,7 +358,8 @@ def report(results: list[dict], meta: dict[str, Any], stem: str) -> str:
         f"seed(s) per row, each one command-line run; the rows' runs took {meta['runs_wall_s']:.0f} s in all "
         f"(this invocation {meta['wall_s']:.0f} s)"
         + (" (smoke budgets: not results)" if meta["smoke"] else "") + ". Bold: at the goal (arm ≥ 95 % per row; "
-        "tracking ≤ ½ of the thesis's best over all its methods, per axis).",
+        "tracking ≤ ½ of the thesis's best over all its methods, per axis; racing ≥ 19 of 20 laps per road with "
+        "at most 1 collision, every seed).",
         "",
     ]  # fmt: skip
     for table in dict.fromkeys(r["row"]["table"] for r in results):

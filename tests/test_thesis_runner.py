@@ -4,6 +4,7 @@ Smoke budgets: the numbers are not checked, the plumbing is."""
 
 from __future__ import annotations
 
+import dataclasses
 import glob
 import json
 import os
@@ -11,7 +12,7 @@ import os
 from benchmarks import thesis
 
 
-def test_table_3_1_smoke_report_resume_and_missing_rows(tmp_path):
+def test_table_3_1_smoke_report_resume_and_missing_rows(tmp_path, monkeypatch):
     runs, out = str(tmp_path / "runs"), str(tmp_path / "out")
     argv = ["--tables", "3.1", "--seeds", "1", "--smoke", "--preset", "cpu", "--quiet", "--runs", runs, "--out", out]
     result = thesis.main(argv)
@@ -44,7 +45,35 @@ def test_table_3_1_smoke_report_resume_and_missing_rows(tmp_path):
     assert os.path.getmtime(os.path.join(dirs["sparse-future2"], "eval.json")) == before
     assert len(glob.glob(os.path.join(runs, "3.1", "sparse-final", "seed0", "*"))) == 1
 
-    # rows whose algorithm does not exist yet are reported as missing, never run
-    missing = thesis.main(["--tables", "6.2-6.3", "--seeds", "1", "--runs", runs, "--out", out])
+    # a row whose algorithm does not exist is reported as missing, never run
+    absent = thesis.Row("3.1", "absent", "an algorithm not built", None, (), 50, "arm", missing="not built")
+    monkeypatch.setattr(thesis, "ROWS", (*thesis.ROWS, absent))
+    missing = thesis.main(["--rows", "3.1/absent", "--seeds", "1", "--runs", runs, "--out", out])
     md = open(missing["stem"] + ".md").read()
-    assert md.count("**missing**") == 8 and not os.path.exists(os.path.join(runs, "6.2-6.3"))
+    assert md.count("**missing**") == 1 and "not built" in md
+    assert not os.path.exists(os.path.join(runs, "3.1", "absent"))
+
+
+def test_racing_rows_by_hand(tmp_path):
+    """Tables 6.2-6.3: successes per road over seeds, met only with ≥ 95 % of the laps and ≤ 5 % collisions
+    on every seed, one table line per road with the thesis's figures beside."""
+    (row,) = [r for r in thesis.ROWS if r.table == "6.2-6.3" and r.name == "td3"]
+    assert row.algo == "td3" and row.argv[:2] == ("--env", "racecar") and len(row.thesis) == 4
+
+    def seed(success, collision):
+        ev = {"laps_per_road": 20, "wall_s": 10.0, "run_dir": str(tmp_path)}
+        for road, ok, hit in zip(thesis.ROADS, success, collision, strict=True):
+            ev.update({f"{road}/success": ok, f"{road}/collision": hit, f"{road}/overtakes": 3.0,
+                       f"{road}/speed_kmh": 100.0})  # fmt: skip
+        return ev
+
+    seeds = [seed((20, 19, 18, 20), (0, 1, 2, 2)), seed((19, 20, 20, 20), (1, 0, 0, 0))]
+    fig = thesis.row_figure(row, seeds)
+    assert fig["mean"] == [19.5, 19.5, 19.0, 20.0] and fig["std"] == [0.5, 0.5, 1.0, 0.0]
+    assert fig["met"] == [True, True, False, False]  # test2: 18 < 19 on one seed; test3: 2 collisions on one
+    assert fig["collisions"] == [0.5, 0.5, 1.0, 1.0] and fig["laps"] == 20
+    result = {"row": dataclasses.asdict(row), "command": ["--env", "racecar"], "seeds": seeds, "figure": fig}
+    lines = thesis.table_markdown("6.2-6.3", [result], str(tmp_path), "figs")
+    body = [line for line in lines if line.startswith("| ") and "---" not in line][1:]
+    assert [line.split(" | ")[1] for line in body] == list(thesis.ROADS)
+    assert "18 / 2 / 0 / 2.6" in body[0] and "**19.5 ± 0.5** of 20" in body[0] and "19.0 ± 1.0 of 20" in body[2]
