@@ -63,7 +63,8 @@ def test_workers_mean_gradient_equals_the_gradient_of_their_concatenated_batches
     state = DDPGState(actor_params=a_p, critic_params=c_p, target_actor_params=ta_p, target_critic_params=tc_p,
                       actor_opt=optax.sgd(lr).init(a_p), critic_opt=optax.sgd(lr).init(c_p), replay=buf,
                       env_state=None, noise_state=None, obs_stats=init_running_stats(2), key=None,
-                      iteration=jnp.zeros((), jnp.int32), updates=jnp.zeros((), jnp.int32), demos=(), imitation_opt=())  # fmt: skip
+                      iteration=jnp.zeros((), jnp.int32), updates=jnp.zeros((), jnp.int32), demos=(),
+                      imitation_opt=())  # fmt: skip
     key = jax.random.PRNGKey(7)
 
     def update(state):
