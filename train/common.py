@@ -278,7 +278,7 @@ def evaluate(
     → success rate, mean extra distance, mean return (whichever metrics the env has);
     ``episodes_fn(key)``, if given, is an already compiled ``run_test_episodes`` of ``policy``.
     With ``precision`` and an env whose config has ``goal_threshold`` (arm7): the same episodes
-    again on the env with the smallest of ``PRECISION_THRESHOLDS`` at or below its own, reported
+    again on the env with the smallest of ``PRECISION_THRESHOLDS`` and its own threshold, reported
     as ``success_5cm``, ``success_2cm``, ``success_1cm`` and the closest distance's median, 90th
     percentile and maximum (:func:`~jaxrl_robot.evaluation.precision_summary`).
     """
@@ -303,10 +303,9 @@ def evaluate(
     summary = summarize_episodes(jax.device_get(episodes_fn(key)))
     own = getattr(getattr(env, "config", None), "goal_threshold", None)
     if precision and own is not None:
-        thresholds = tuple(t for t in PRECISION_THRESHOLDS if t <= own + 1e-9)
-        strict = type(env)(env.config, goal_threshold=min(thresholds + (own,)))
+        strict = type(env)(env.config, goal_threshold=min(PRECISION_THRESHOLDS + (own,)))
         run = jax.jit(lambda k: run_test_episodes(k, strict, policy, episodes, episode_length or None))
-        summary.update(precision_summary(jax.device_get(run(key)), thresholds))
+        summary.update(precision_summary(jax.device_get(run(key)), PRECISION_THRESHOLDS))
     return {"kind": "episodes", **summary}
 
 
