@@ -22,10 +22,12 @@ import json
 import math
 import os
 import platform
+import statistics
 from typing import Any
 
 import jax
 
+from benchmarks import provenance
 from jaxrl_robot.logging import read_csv
 from train import a2c as a2c_cli
 
@@ -109,19 +111,21 @@ def to_markdown(result: dict[str, Any]) -> str:
         groups.setdefault((r["algo"], r["reward"], r["preset"], " ".join(r["extra"])), []).append(r)
     summary = [
         "",
-        "Per setting, over seeds: success (mean, min–max of the seeds), mean extra distance of the seeds' means.",
+        "Per setting, over seeds: success (mean, min–max of the seeds, median), mean extra distance of the seeds' "
+        "means.",
         "",
-        "| algo | reward | preset | flags | seeds | success % (thesis) | extra distance (m) |",
-        "|---|---|---|---|---|---|---|",
+        "| algo | reward | preset | flags | seeds | success % (thesis) | median % | extra distance (m) |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for (algo, reward, preset, flags), rs in sorted(groups.items()):
         succ = [100 * r["success_rate"] for r in rs]
+        median = statistics.median(succ)
         extra = [r["mean_extra_distance"] for r in rs if r["mean_extra_distance"] is not None]
         extra = [x for x in extra if not math.isnan(x)]
         extra_s = f"{sum(extra) / len(extra):.3f}" if extra else "n/a"
         summary.append(
             f"| {algo} | {reward} | {preset} | {flags} | {len(rs)} | {sum(succ) / len(succ):.1f} "
-            f"({min(succ):.0f}–{max(succ):.0f}) ({THESIS[(algo, reward)]}) | {extra_s} |"
+            f"({min(succ):.0f}–{max(succ):.0f}) ({THESIS[(algo, reward)]}) | {median:.1f} | {extra_s} |"
         )
     lines += summary + ["", "All runs:", ""] + lines[4:6]
     del lines[4:6]
@@ -144,10 +148,16 @@ def to_markdown(result: dict[str, Any]) -> str:
 
 
 def _write(stem: str, result: dict[str, Any]) -> None:
-    with open(stem + ".json", "w") as f:
-        json.dump(result, f, indent=2, default=float)
-    with open(stem + ".md", "w") as f:
-        f.write(to_markdown(result))
+    """The results, with this invocation's provenance and that of the earlier ones whose rows remain."""
+    mine = result["provenance"]["started"]
+    earlier = {r["provenance"]["started"]: r["provenance"] for r in result["rows"] if "provenance" in r}
+    earlier.pop(mine, None)
+    kept = os.path.join("runs", os.path.basename(stem))
+    result["provenance"]["run_directories"] = (
+        f"`eval.json` and `config.json` of each row's run kept under `{kept}/` beside this file"
+        if any(r.get("kept") for r in result["rows"]) else "not kept"
+    )  # fmt: skip
+    provenance.write(stem, result, to_markdown(result), earlier=list(earlier.values()))
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
@@ -160,7 +170,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--note", default="", help="free text recorded with the results (e.g. machine load)")
     p.add_argument("--extra", nargs=argparse.REMAINDER, default=[], help="further train.a2c flags for every row")
     p.add_argument("--rebuild", action="store_true", help="only re-derive the saved rows from their run directories")
+    provenance.add_args(p)
     args = p.parse_args(argv)
+    prov = provenance.record("benchmarks.a2c_arm7", argv, seeds=args.seeds, commit=args.commit,
+                             **({"note": args.note} if args.note else {}))  # fmt: skip
     os.makedirs(args.runs, exist_ok=True)
     os.makedirs(args.out, exist_ok=True)
     stem = os.path.join(args.out, f"{device_label()}-a2c_arm7")
@@ -168,6 +181,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
               "note": "Each row: one CLI run; success over 100 test episodes of the final policy."}  # fmt: skip
     if os.path.exists(stem + ".json"):
         result = json.load(open(stem + ".json"))
+    result["provenance"] = prov
     if args.rebuild:
         keep = ("algo", "reward", "preset", "seed", "extra")
         result["rows"] = [
@@ -181,6 +195,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             rec = run_row(algo, reward, args.preset, seed, args.runs, list(args.extra))
             if args.note:
                 rec["note"] = args.note
+            rec["provenance"] = dict(provenance.stamp(prov))
+            rec["kept"] = provenance.keep_run(rec["run_dir"], stem)
             result["rows"] = [r for r in result["rows"] if _key(r) != _key(rec)] + [rec]
             _write(stem, result)
             print(to_markdown({**result, "rows": [rec]}), flush=True)

@@ -28,20 +28,20 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import subprocess
-import sys
 import time
 from typing import Any
 
 import jax
 
 import envs_mjx
+from benchmarks import provenance
 from benchmarks.timing import compile_and_time
 from benchmarks.tracking_report import pairs
-from benchmarks.train_throughput import RESULTS, device_label, write_results
+from benchmarks.train_throughput import RESULTS, device_label
 from jaxrl_robot.agents.ddpg import DDPGConfig, make_trainer
 
 GOAL_STEPS, GOAL_UPDATES = 1_000_000, 2_000
+SEEDS = "PRNGKey(0) for every case (fixed in the code)"
 
 
 def config_for(kind: str, lanes: int, args: argparse.Namespace) -> DDPGConfig:
@@ -125,15 +125,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--iterations", type=int, default=10 if on_gpu else 2, help="iterations per timed call")
     p.add_argument("--repeats", type=int, default=5 if on_gpu else 3)
     p.add_argument("--set", nargs="*", default=[], help="further DDPG fields FIELD=VALUE")
-    p.add_argument("--commit", default="", help="commit to record (default: git's HEAD)")
+    provenance.add_args(p)
     p.add_argument("--out", default=RESULTS)
-    argv = sys.argv[1:] if argv is None else argv
     args = p.parse_args(argv)
-    git = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
+    prov = provenance.record("benchmarks.ddpg_throughput", argv, seeds=SEEDS, commit=args.commit)
     result = {
-        "benchmark": "ddpg_throughput", "device": device_label(), "devices": jax.device_count(), "env": args.env,
-        "command": "python -m benchmarks.ddpg_throughput " + " ".join(argv),
-        "commit": args.commit or git.stdout.strip() or "unknown", "jax": jax.__version__,
+        "benchmark": "ddpg_throughput", "provenance": prov, "device": device_label(), "devices": jax.device_count(),
+        "env": args.env, "command": prov["command"], "commit": prov["commit"], "jax": jax.__version__,
         "date": time.strftime("%Y-%m-%d"), "repeats": args.repeats, "iterations": args.iterations, "runs": [],
     }  # fmt: skip
     stem = f"{args.out}/{device_label()}x{jax.device_count()}-ddpg_throughput-{args.env}"
@@ -144,7 +142,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                 result["runs"].append(row)
                 print(kind, lanes, updates, f"{row['env_steps_per_s']:,.0f} steps/s",
                       f"{row['updates_per_s']:,.0f} updates/s", flush=True)  # fmt: skip
-                write_results(stem, result, to_markdown(result))
+                provenance.write(stem, result, to_markdown(result), echo=True)
     return result
 
 

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import json
 import os
 import time
 from typing import Any
@@ -24,6 +23,7 @@ from typing import Any
 import jax
 import numpy as np
 
+from benchmarks import provenance
 from benchmarks.train_throughput import RESULTS, device_label
 from jaxrl_robot import parallel
 
@@ -85,7 +85,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--chunks", type=int, default=2)
     p.add_argument("--extra", nargs="*", default=[], help="further flags for every case's command line")
     p.add_argument("--out", default=RESULTS)
+    provenance.add_args(p)
     args = p.parse_args(argv)
+    prov = provenance.record("benchmarks.devices_agree", argv, seeds="PRNGKey(0) for every case (fixed in the code)",
+                             commit=args.commit)  # fmt: skip
     rows = []
     for case in args.cases:
         try:
@@ -101,11 +104,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             print(f"{case:14s} max|Δparam| {r['max_param_diff']:.2e} (max|param| {r['max_param_abs']:.2g})  "
                   f"max|Δmetric| {md:.2e}  steps/s 1: {r['steps_per_s_1']:,.0f}  "
                   f"{n}: {r['steps_per_s_' + str(n)]:,.0f}  ({r['lane_map_' + str(n)]})", flush=True)  # fmt: skip
-    result = {"benchmark": "devices_agree", "device": device_label(), "gpus": len(jax.devices()),
+    result = {"benchmark": "devices_agree", "provenance": prov, "device": device_label(), "gpus": len(jax.devices()),
               "jax": jax.__version__, "date": time.strftime("%Y-%m-%d %H:%M"), "chunks": args.chunks, "runs": rows}
-    os.makedirs(args.out, exist_ok=True)
-    with open(os.path.join(args.out, f"{result['device']}x{result['gpus']}-devices_agree.json"), "w") as f:
-        json.dump(result, f, indent=2, default=float)
+    provenance.write(os.path.join(args.out, f"{result['device']}x{result['gpus']}-devices_agree"), result, None)
     return result
 
 

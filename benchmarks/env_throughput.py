@@ -31,7 +31,6 @@ os.environ.setdefault("ENVS_MJX_XLA_CPU_FIX", "0")
 import argparse  # noqa: E402
 import dataclasses  # noqa: E402
 import datetime  # noqa: E402
-import json  # noqa: E402
 import statistics  # noqa: E402
 import time  # noqa: E402
 import warnings  # noqa: E402
@@ -44,6 +43,7 @@ import mujoco  # noqa: E402
 from mujoco import mjx  # noqa: E402
 
 import envs_mjx  # noqa: E402
+from benchmarks import provenance  # noqa: E402
 from envs_mjx import wrap_for_training  # noqa: E402
 
 warnings.filterwarnings("ignore", message="arm7 pd mode steps MJX")  # options are set per computation here
@@ -241,7 +241,10 @@ def main(argv: list[str] | None = None) -> None:
         help="batches also measured with XLA's default pipeline (CPU before/after)",
     )  # fmt: skip
     parser.add_argument("--out", default=None, help="JSON path (markdown beside it); default benchmarks/results/")
+    provenance.add_args(parser)
     args = parser.parse_args(argv)
+    seeds = "fixed in the code: states from PRNGKey(0), actions from PRNGKey(1), every case"
+    prov = provenance.record("benchmarks.env_throughput", argv, seeds=seeds, commit=args.commit)
 
     cases = {c.label: c for c in CASES}
     unknown = [c for c in args.cases if c not in cases]
@@ -267,10 +270,8 @@ def main(argv: list[str] | None = None) -> None:
     def save() -> None:
         if on_cpu:
             meta["loadavg_end"] = os.getloadavg()[0]
-        with open(out, "w") as f:
-            json.dump({"meta": meta, "rows": rows, "mlp_side_cost": mlp}, f, indent=1)
-        with open(os.path.splitext(out)[0] + ".md", "w") as f:
-            f.write(markdown(meta, rows, mlp))
+        result = {"provenance": prov, "meta": meta, "rows": rows, "mlp_side_cost": mlp}
+        provenance.write(os.path.splitext(out)[0], result, markdown(meta, rows, mlp))
 
     order = sorted(args.cases, key=lambda label: 0 if isinstance(cases[label], RawMJX) else 1)
     for lanes in args.batches:

@@ -2,8 +2,9 @@
 
 ``python -m benchmarks.multigpu_repro [--variants a,b] [--lanes 256] [--out FILE]`` runs every
 variant in a fresh subprocess (a segmentation fault only ends that variant) and prints a table
-of exit codes. A variant compiles and runs the rollout of ``arm7`` in ``pd`` mode (MJX position
-servos) for a few steps on all visible devices, lanes split over the ``"lanes"`` mesh axis.
+of exit codes (``--out FILE.json``: also written there, with ``FILE.md`` beside it). A variant
+compiles and runs the rollout of ``arm7`` in ``pd`` mode (MJX position servos) for a few steps on
+all visible devices, lanes split over the ``"lanes"`` mesh axis.
 
 Variants:
   one_device      shard_map over a 1-device mesh (control);
@@ -23,6 +24,8 @@ import os
 import subprocess
 import sys
 import time
+
+from benchmarks import provenance
 
 FLAGS = {
     "autotune0": "--xla_gpu_autotune_level=0",
@@ -76,8 +79,9 @@ def child(variant: str, lanes: int, steps: int) -> None:
     t1 = time.perf_counter()
     obs, r = compiled(jax.device_put(keys, parallel.lane_sharding(mesh)))
     jax.block_until_ready(obs)
-    print(json.dumps({"variant": variant, "devices": n_dev, "compile_s": round(t1 - t0, 2),
-                      "obs_sum": float(jnp.sum(obs)), "reward_last": float(r[-1])}))
+    print(json.dumps({"variant": variant, "devices": n_dev, "device_kind": jax.devices()[0].device_kind,
+                      "platform": jax.devices()[0].platform, "compile_s": round(t1 - t0, 2),
+                      "obs_sum": float(jnp.sum(obs)), "reward_last": float(r[-1])}))  # fmt: skip
 
 
 def main() -> None:
@@ -88,10 +92,14 @@ def main() -> None:
     p.add_argument("--timeout", type=int, default=300)
     p.add_argument("--out", default="")
     p.add_argument("--child", default="", help=argparse.SUPPRESS)
+    provenance.add_args(p)
     a = p.parse_args()
     if a.child:
         child(a.child, a.lanes, a.steps)
         return
+    # jax is not started here (the variants each start it in a process of their own): they report the device
+    prov = provenance.record("benchmarks.multigpu_repro", seeds="PRNGKey(0) (fixed in the code)", commit=a.commit,
+                             device_info={"name": "not reported by any variant", "platform": "?"})  # fmt: skip
     rows = []
     for v in a.variants.split(","):
         env = dict(os.environ)
@@ -115,9 +123,25 @@ def main() -> None:
         print(f"{v:40s} rc={rc!s:8s} {json.dumps(result)}", flush=True)
         if rc != 0:
             print("   " + err[-1200:].replace("\n", "\n   "), flush=True)
+    ran = [r for r in rows if "device_kind" in r]
+    if ran:
+        n = max(r["devices"] for r in ran)
+        prov["device"] = {"name": ran[0]["device_kind"], "platform": ran[0]["platform"], "count": n,
+                          "cpu_cores": os.cpu_count()}  # fmt: skip
     if a.out:
-        with open(a.out, "w") as f:
-            json.dump(rows, f, indent=1)
+        provenance.write(os.path.splitext(a.out)[0], {"provenance": prov, "lanes": a.lanes, "steps": a.steps,
+                                                       "rows": rows}, to_markdown(rows))  # fmt: skip
+
+
+def to_markdown(rows: list[dict]) -> str:
+    """The variants' table: exit code, devices, compile s, wall s, observation sum and last reward."""
+    lines = ["# MJX physics inside shard_map over several GPUs: the variants", "",
+             "| variant | exit code | devices | compile s | wall s | obs sum | last reward |",
+             "|---|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
+    for r in rows:
+        cells = [r.get(k, "—") for k in ("devices", "compile_s", "wall_s", "obs_sum", "reward_last")]
+        lines.append(f"| {r['variant']} | {r['rc']} | " + " | ".join(map(str, cells)) + " |")
+    return "\n".join(lines) + "\n"
 
 
 if __name__ == "__main__":

@@ -15,7 +15,6 @@ most one collision.  Writes ``benchmarks/results/<device>-racing[-label].md`` an
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import time
 from typing import Any
@@ -24,6 +23,7 @@ import jax
 import numpy as np
 
 import envs_mjx
+from benchmarks import provenance
 from benchmarks.tracking_report import pairs, train_seeds
 from envs_mjx import racetrack
 from envs_mjx.racecar import LAP_OUTCOMES, expert_action, lap_summary, make_lap_test
@@ -62,13 +62,14 @@ def per_seed(results: dict[str, np.ndarray]) -> list[dict[str, dict]]:
 
 
 def aggregate(seeds: list[dict[str, dict]]) -> dict[str, dict[str, Any]]:
-    """Per road: each outcome's and figure's mean and std over seeds, and the per-seed successes."""
+    """Per road: each outcome's and figure's mean, std and median over seeds, and the per-seed values."""
     out = {}
     for road in ROADS:
         row: dict[str, Any] = {}
         for k in (*LAP_OUTCOMES, "overtakes", "speed_kmh"):
             vals = np.array([s[road][k] for s in seeds], float)
-            row[k] = {"mean": float(vals.mean()), "std": float(vals.std()), "seeds": vals.tolist()}
+            row[k] = {"mean": float(vals.mean()), "std": float(vals.std()), "median": float(np.median(vals)),
+                      "seeds": vals.tolist()}  # fmt: skip
         laps = seeds[0][road]["laps"]
         row["met"] = bool(all(s[road]["success"] >= 0.95 * laps and s[road]["collision"] <= 0.05 * laps for s in seeds))
         out[road] = row
@@ -106,14 +107,15 @@ def to_markdown(report: dict[str, Any]) -> str:
     lines = [
         f"# Racing with opponents, Tables 6.2–6.3 — {meta['device']}",
         "",
-        f"`{meta['command']}` at commit {meta['commit']}; preset `{meta['preset']}`, {meta['seeds']} seeds from key "
-        f"{meta['seed0']}, {meta['laps']} laps per road per seed (random starts and opponents, test key "
-        f"{meta['test_key']}); env overrides {meta['env_overrides']}. Goal: {GOAL}. Cells: mean ± std over "
-        "seeds of the laps of each outcome (success / collision / out of track / stalled), mean overtakes per "
-        "lap, mean speed; the thesis's (success / collision / out / overtakes) beside.",
+        f"`{meta['command']}` at commit {meta['commit']} ({provenance.tree_words(report['provenance'])}); "
+        f"preset `{meta['preset']}`, {meta['seeds']} seeds from key {meta['seed0']}, {meta['laps']} laps per road "
+        f"per seed (random starts and opponents, test key {meta['test_key']}); env overrides "
+        f"{meta['env_overrides']}. Goal: {GOAL}. Cells: mean ± std over seeds of the laps of each outcome "
+        "(success / collision / out of track / stalled), mean overtakes per lap, mean speed; the thesis's "
+        "(success / collision / out / overtakes) beside.",
         "",
         "| method | road | success | collision | out of track | stalled | overtakes | km/h | thesis | met | "
-        "successes per seed |",
+        "successes per seed (median) |",
         "|---|---|---:|---:|---:|---:|---:|---:|---|---|---|",
     ]
     for case in report["cases"]:
@@ -122,6 +124,7 @@ def to_markdown(report: dict[str, Any]) -> str:
             thesis = THESIS.get(case["method"], {}).get(road)
             th = " / ".join(f"{v:g}" for v in thesis) if thesis else "—"
             seeds = ", ".join(f"{v:g}" for v in row["success"]["seeds"])
+            seeds += f" ({row['success']['median']:g})" if "median" in row["success"] else ""
             lines.append(
                 f"| {case['method']} | {road} | {cell('success')} | {cell('collision')} | {cell('out_of_track')} | "
                 f"{cell('stalled')} | {cell('overtakes', 2)} | {cell('speed_kmh', 0)} | {th} | "
@@ -145,16 +148,18 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--set", nargs="*", default=[], metavar="FIELD=VALUE", help="DDPGConfig overrides")
     p.add_argument("--env-config", nargs="*", default=[], metavar="KEY=VALUE", help="racecar overrides")
     p.add_argument("--sequential", action="store_true", help="one program per seed instead of vmapped seeds")
-    p.add_argument("--commit", default="unknown")
+    provenance.add_args(p)
     p.add_argument("--label", default="")
     p.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "results"))
     args = p.parse_args(argv)
     overrides = {**ddpg_env_overrides(args.preset, "racecar"), **pairs(args.env_config)}
     env = envs_mjx.make("racecar", **overrides)
-    meta = {"device": device_label(), "command": "python -m benchmarks.racing " + " ".join(argv or []),
-            "commit": args.commit, "preset": args.preset, "seeds": args.seeds, "seed0": args.seed0,
+    seeds = f"{args.seeds} keys split from PRNGKey({args.seed0}); test key PRNGKey({args.test_key})"
+    prov = provenance.record("benchmarks.racing", argv, seeds=seeds, commit=args.commit)
+    meta = {"device": device_label(), "command": prov["command"], "commit": prov["commit"], "preset": args.preset,
+            "seeds": args.seeds, "seed0": args.seed0,
             "laps": args.laps, "test_key": args.test_key, "env_overrides": overrides}  # fmt: skip
-    report: dict[str, Any] = {"meta": meta, "cases": []}
+    report: dict[str, Any] = {"provenance": prov, "meta": meta, "cases": []}
     os.makedirs(args.out, exist_ok=True)
     stem = os.path.join(args.out, f"{meta['device']}-racing" + (f"-{args.label}" if args.label else ""))
     for method in args.methods:
@@ -167,10 +172,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                 f"overtakes {row['overtakes']['mean']:.2f} {row['speed_kmh']['mean']:.0f} km/h",
                 flush=True,
             )
-        with open(stem + ".json", "w") as f:  # after every method: a cut-off run keeps what it finished
-            json.dump(report, f, indent=1, default=str)
-        with open(stem + ".md", "w") as f:
-            f.write(to_markdown(report))
+        provenance.write(stem, report, to_markdown(report))  # after every method: a cut-off run keeps what it finished
     print(f"wrote {stem}.md")
     return report
 

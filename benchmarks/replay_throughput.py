@@ -36,11 +36,9 @@ Results: ``benchmarks/results/<device>-replay_throughput.json`` and ``.md`` (``<
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import statistics
-import sys
 import time
 from collections.abc import Callable
 from typing import Any
@@ -49,6 +47,7 @@ import jax
 import jax.numpy as jnp
 
 import envs_mjx  # noqa: F401  (configures XLA:CPU for MJX before the first computation)
+from benchmarks import provenance
 from benchmarks.timing import compile_and_time
 from jaxrl_robot.replay import Transition, make_prioritized_replay, make_uniform_replay
 
@@ -271,7 +270,7 @@ def to_markdown(result: dict[str, Any]) -> str:
             lines.append(f"| {r['mode']} | {r['lanes']} | {r['updates_per_cycle']} × {r['batch']} | {r['cycle_s']:.3f} "
                          f"| {r['env_steps_per_s']:,.0f} | {r['updates_per_s']:,.0f} | {r['compile_s']:.1f} |")
         lines.append("")
-    lines += ["## Run", "", f"- Command: `{result['command']}`",
+    lines += ["## Run", "",
               f"- Load average (1 min) at start / end: {result['load_start']} / {result.get('load_end', '—')} "
               f"on {os.cpu_count()} CPU cores (other jobs on a shared host make CPU figures noisy)."]  # fmt: skip
     return "\n".join(lines) + "\n"
@@ -292,13 +291,15 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--blocks", nargs="*", default=["block"],
                    help="block-tree variants: 'block' (default backend), 'block-xla', 'block-pallas'")  # fmt: skip
     p.add_argument("--out", default=RESULTS)
+    provenance.add_args(p)
     args = p.parse_args(argv)
     on_gpu = jax.default_backend() != "cpu"
+    seeds = "fixed in the code: PRNGKey(0)-PRNGKey(5) for the items, priorities, keys and TD errors"
     result: dict[str, Any] = {
+        "provenance": provenance.record("benchmarks.replay_throughput", argv, seeds=seeds, commit=args.commit),
         "device": device_label(), "device_kind": jax.devices()[0].device_kind, "jax": jax.__version__,
         "host": platform.node(), "capacity": args.capacity, "fill": args.fill, "inner": args.inner,
         "repeats": args.repeats, "ops": {}, "ratios": {},
-        "command": "python -m benchmarks.replay_throughput " + " ".join(sys.argv[1:] if argv is None else argv),
         "load_start": round(os.getloadavg()[0], 2),
     }  # fmt: skip
     if args.replay:  # the floor under every figure: one scan iteration that does no replay work
@@ -344,13 +345,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 def save(result: dict[str, Any], out: str) -> str:
     """Write (or rewrite) the ``.json`` and ``.md`` results; returns the markdown."""
     os.makedirs(out, exist_ok=True)
-    stem = os.path.join(out, f"{result['device']}-replay_throughput")
-    with open(stem + ".json", "w") as f:
-        json.dump(result, f, indent=2)
-    md = to_markdown(result)
-    with open(stem + ".md", "w") as f:
-        f.write(md)
-    return md
+    return provenance.write(os.path.join(out, f"{result['device']}-replay_throughput"), result, to_markdown(result))
 
 
 if __name__ == "__main__":

@@ -35,13 +35,14 @@ from typing import Any
 import jax
 
 import envs_mjx
+from benchmarks import provenance
 from benchmarks.train_throughput import (
     RESULTS,
+    SEEDS,
     bench_brax,
     bench_ours,
     device_label,
     markdown_head,
-    write_results,
 )
 from jaxrl_robot import parallel
 
@@ -145,7 +146,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--lane-group", type=int, default=0)
     p.add_argument("--out", default=RESULTS)
     p.add_argument("--brax-only", default="", help=argparse.SUPPRESS)
+    provenance.add_args(p)
     args = p.parse_args(argv)
+    prov = provenance.record("benchmarks.scaling", argv, seeds=SEEDS, commit=args.commit)
     if args.brax_only:
         rows = [r for e in args.envs for r in run_brax(e, args)]
         with open(args.brax_only, "w") as f:
@@ -159,6 +162,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             os.remove(os.path.join(args.out, ".brax_rows.json"))
     result = {
         "benchmark": "scaling",
+        "provenance": prov,
         "device": device_label(),
         "gpus": len(jax.devices()),
         "jax": jax.__version__,
@@ -172,7 +176,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "env_configs": {e: ENV_CONFIGS[e] for e in args.envs},
         "runs": runs,
     }
-    write_results(os.path.join(args.out, f"{result['device']}x{result['gpus']}-scaling"), result, to_markdown(result))
+    stem = os.path.join(args.out, f"{result['device']}x{result['gpus']}-scaling")
+    provenance.write(stem, result, to_markdown(result), echo=True)
     return result
 
 

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import subprocess
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -20,7 +19,8 @@ from typing import Any
 import jax
 import numpy as np
 
-from benchmarks.train_throughput import RESULTS, device_label, write_results
+from benchmarks import provenance
+from benchmarks.train_throughput import RESULTS, device_label
 from train.common import parse_value
 
 THESIS = {  # (reference, method) -> (x, y, θ or z) sums over the test episode (SPEC.md §R)
@@ -67,7 +67,7 @@ def add_common_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--set", nargs="*", default=[], help="trainer config fields FIELD=VALUE")
     p.add_argument("--env-config", nargs="*", default=[], help="env settings KEY=VALUE")
     p.add_argument("--label", default="", help="names the variant (results file suffix)")
-    p.add_argument("--commit", default="", help="commit to record (default: git's HEAD)")
+    provenance.add_args(p)
     p.add_argument("--out", default=RESULTS)
 
 
@@ -94,7 +94,7 @@ def train_seeds(train: Callable, test: Callable, keys: jax.Array, vmapped: bool)
 
 
 def summarise(result: dict, metrics: dict, reward_key: str, **fields: Any) -> dict[str, Any]:
-    """One case's dict: ``fields`` plus the per-seed sums ``[S, 3]``, their mean and std, test steps
+    """One case's dict: ``fields`` plus the per-seed sums ``[S, 3]``, their mean, std and median, test steps
     and the last chunk's ``metrics[reward_key]`` per seed."""
     sums = np.asarray(result["sum_abs_error"])
     return {
@@ -103,6 +103,7 @@ def summarise(result: dict, metrics: dict, reward_key: str, **fields: Any) -> di
         "steps": np.asarray(result["steps"]).tolist(),
         "mean": sums.mean(axis=0).tolist(),
         "std": sums.std(axis=0).tolist(),
+        "median": np.median(sums, axis=0).tolist(),
         "final_reward": np.asarray(metrics[reward_key])[:, -1].tolist(),
     }
 
@@ -114,9 +115,10 @@ def to_markdown(result: dict[str, Any], title: str, intro: str, third: str = "θ
     lines = [
         f"# {title} — {result['device']}",
         "",
-        f"`{result['command']}` at commit {result['commit']} (jax {result['jax']}, {result['date']}). {intro} "
+        f"`{result['command']}` at commit {result['commit']} ({provenance.tree_words(result['provenance'])}; "
+        f"jax {result['jax']}, {result['date']}). {intro} "
         f"Keys split from seed {result['seed']}; per axis the sum over the test episode from t = 0 of "
-        "|error| (x, y m; θ rad or z m), mean ± std over seeds, each seed in brackets; goal: ½ of the "
+        "|error| (x, y m; θ rad or z m), mean ± std over seeds (median), each seed beside; goal: ½ of the "
         "thesis's best over all its methods. Bold: at or below the goal.",
         "",
         f"| reference | method | variant | x | y | {third} | seeds (x / y / {third}) | env steps "
@@ -128,7 +130,8 @@ def to_markdown(result: dict[str, Any], title: str, intro: str, third: str = "θ
         for axis in range(3):
             mean, std = r["mean"][axis], r["std"][axis]
             text = f"{mean:.2f} ± {std:.2f}"
-            cells.append(f"**{text}**" if mean <= r["goal"][axis] else text)
+            median = f" ({r['median'][axis]:.2f})" if "median" in r else ""
+            cells.append((f"**{text}**" if mean <= r["goal"][axis] else text) + median)
         per_seed = "; ".join(" / ".join(f"{v:.2f}" for v in s) for s in r["sums"])
         lines.append(
             f"| {r['reference']} | {r['method']} | {r['label'] or '-'} | {' | '.join(cells)} | {per_seed} "
@@ -151,14 +154,16 @@ def run_cases(
 ) -> dict[str, Any]:
     """Run ``run_case(reference, method, args)`` for every case; write ``<device>-<name>[-label]``
     (json and markdown) under ``args.out`` after each.  Returns the whole result."""
-    git = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
+    seeds = f"{args.seeds} keys split from PRNGKey({args.seed})"
+    prov = provenance.record(f"benchmarks.{name}", argv, seeds=seeds, commit=args.commit)
     result = {
         "benchmark": name,
+        "provenance": prov,
         "device": device_label(),
         "preset": args.preset,
         "seed": args.seed,
-        "command": f"python -m benchmarks.{name} " + " ".join(argv),
-        "commit": args.commit or git.stdout.strip() or "unknown",
+        "command": prov["command"],
+        "commit": prov["commit"],
         "jax": jax.__version__,
         "date": time.strftime("%Y-%m-%d"),
         "runs": [],
@@ -166,7 +171,7 @@ def run_cases(
     stem = os.path.join(args.out, f"{device_label()}-{name}" + (f"-{args.label}" if args.label else ""))
     for reference, method in cases:
         result["runs"].append(run_case(reference, method, args))
-        write_results(stem, result, markdown(result))
+        provenance.write(stem, result, markdown(result), echo=True)
     return result
 
 
@@ -194,4 +199,3 @@ def cli(
     args.preset = resolve_preset(args.preset)
     cases = [(r, m) for r in getattr(args, flag) for m in args.methods]
     return run_cases(name, args, argv, cases, run_case, markdown)
-

@@ -22,7 +22,6 @@ Results: ``benchmarks/results/<device>-train_throughput-<mode>.json`` and ``.md`
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import statistics
@@ -33,11 +32,13 @@ import jax
 import numpy as np
 
 import envs_mjx
+from benchmarks import provenance
 from benchmarks.peers.brax_ppo import run_brax_ppo
 from benchmarks.timing import compile_and_time
 from jaxrl_robot.agents.ppo import PPOConfig, make_trainer
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
+SEEDS = "fixed in the code: ours PRNGKey(0), brax seed 0, every case"
 
 
 def device_label() -> str:
@@ -91,16 +92,6 @@ def bench_brax(env: Any, lanes: int, unroll: int, chunk_iters: int, repeats: int
     return {"impl": "brax.ppo", "lanes": lanes, "unroll": unroll, "steps_per_s": out["timed_sps_median"], **out}
 
 
-def write_results(stem: str, result: dict[str, Any], markdown: str) -> None:
-    """Write ``stem.json`` (``result``) and ``stem.md`` (``markdown``), creating the folder; print the table."""
-    os.makedirs(os.path.dirname(stem) or ".", exist_ok=True)
-    with open(stem + ".json", "w") as f:
-        json.dump(result, f, indent=2, default=float)
-    with open(stem + ".md", "w") as f:
-        f.write(markdown)
-    print(markdown)
-
-
 def markdown_head(title: str, result: dict[str, Any], *notes: str) -> list[str]:
     """``[# title, "", settings, ""]``: the title and the run's settings (jax, date, N, updates per
     iteration, iterations per timed call, repeats, then ``notes``) of a PPO throughput table."""
@@ -150,7 +141,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     )
     p.add_argument("--no-brax", action="store_true")
     p.add_argument("--out", default=RESULTS)
+    provenance.add_args(p)
     args = p.parse_args(argv)
+    prov = provenance.record("benchmarks.train_throughput", argv, seeds=SEEDS,
+                             commit=args.commit)  # fmt: skip
     mode = args.mode or ("kinematic" if on_cpu else "pd")
     env = envs_mjx.make("arm7", mode=mode)
     runs = []
@@ -171,6 +165,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             runs.append(r)
     result: dict[str, Any] = {
         "benchmark": "train_throughput",
+        "provenance": prov,
         "device": device_label(),
         "device_kind": jax.devices()[0].device_kind,
         "jax": jax.__version__,
@@ -195,7 +190,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         result["ratio"] = ours[lanes] / theirs[lanes]
         result["best_ratio"] = max(ours.values()) / max(theirs.values())
         print(f"ratio ours/brax at {lanes} lanes: {result['ratio']:.2f}x; best/best {result['best_ratio']:.2f}x")
-    write_results(os.path.join(args.out, f"{result['device']}-train_throughput-{mode}"), result, to_markdown(result))
+    stem = os.path.join(args.out, f"{result['device']}-train_throughput-{mode}")
+    provenance.write(stem, result, to_markdown(result), echo=True)
     return result
 
 
