@@ -188,8 +188,10 @@ def recovered_markdown(rec: dict[str, Any]) -> str:
     lines = ["## Provenance (recovered from git history)", "", rec.get("intro", ""), ""]
     for key, label in RECOVERED_FIELDS:
         value = rec.get(key)
-        if value:
-            lines.append(f"- {label}: " + ("; ".join(value) if isinstance(value, list) else str(value)))
+        if isinstance(value, list) and len(value) > 1:
+            lines += [f"- {label}:", *(f"  - {v}" for v in value)]
+        elif value:
+            lines.append(f"- {label}: " + (value[0] if isinstance(value, list) else str(value)))
     return "\n".join(lines) + "\n"
 
 
