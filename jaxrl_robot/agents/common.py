@@ -9,6 +9,8 @@
 * :func:`setup` → :class:`Setup` — the shell of ``make_trainer``: the config validated, lanes per
   device, the env wrapped for training, iteration and chunk counts, the initial env states
   (:meth:`Setup.reset`) and the :class:`~jaxrl_robot.types.Trainer` (:meth:`Setup.trainer`).
+* :class:`RunState` — the fields every such train state has (lanes' env states, key, iteration
+  count); an algorithm's state subclasses it and adds its networks and optimisers.
 * :func:`init_actor_critic`, :func:`sample_lanes`, :func:`cast_like`, :func:`state_specs`.
 * Episode-parameter schedules: :func:`schedule_tables`, :func:`schedule_values`,
   :func:`initial_env_params`, :func:`apply_schedule`.
@@ -33,6 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 from brax.envs.base import Env, State
+from flax import struct
 
 from envs_mjx.base import wrap_for_training
 from envs_mjx.config import ConfigError, check_choice, check_range
@@ -43,6 +46,7 @@ from jaxrl_robot.types import Metrics, Policy, Trainer, Transition
 
 __all__ = [
     "ActorCriticConfig",
+    "RunState",
     "action_sigma",
     "Setup",
     "apply_gradients",
@@ -303,6 +307,23 @@ def setup(
         iterations_per_update=iterations_per_update,
         num_updates=math.ceil(config.total_iterations / iterations_per_update),
     )
+
+
+@struct.dataclass(kw_only=True)
+class RunState:
+    """The part of a train state that every trainer built on :func:`setup` has; an algorithm's state
+    (``PPOState``, ``A2CState``, ``A3CState``) subclasses it and adds its own fields, which come
+    first in the constructor's positional order (these three are keyword-only).
+
+    Attributes:
+      env_state: ``State [K]`` of the wrapped env (lanes split over devices).
+      key: PRNG key of the run.
+      iteration: ``[]`` int32 iterations (A2C / A3C: rounds) done.
+    """
+
+    env_state: State
+    key: jax.Array
+    iteration: jax.Array
 
 
 def state_specs(cls: type, **specs: Any) -> Any:

@@ -75,42 +75,32 @@ class NetParams:
 
 
 @struct.dataclass
-class A2CState:
-    """Everything an A2C run needs to continue exactly.
+class A2CState(common.RunState):
+    """Everything an A2C run needs to continue exactly: the lanes' ``env_state [K]``, ``key`` and
+    ``iteration`` (rounds done) of :class:`~jaxrl_robot.agents.common.RunState`, and
 
     Attributes:
       params: global :class:`NetParams`.
       actor_opt, critic_opt: Adam states.
-      env_state: ``State [K]`` of the wrapped env (lanes split over devices).
-      key: PRNG key of the run.
-      iteration: ``[]`` int32 rounds done.
     """
 
     params: NetParams
     actor_opt: Any
     critic_opt: Any
-    env_state: State
-    key: jax.Array
-    iteration: jax.Array
 
 
 @struct.dataclass
-class A3CState:
-    """Everything an A3C run needs to continue exactly.
+class A3CState(common.RunState):
+    """Everything an A3C run needs to continue exactly: the lanes' ``env_state [K]``, ``key`` and
+    ``iteration`` (rounds done) of :class:`~jaxrl_robot.agents.common.RunState`, and
 
     Attributes:
       push: :class:`~jaxrl_robot.agents.a2c.asynchrony.PushState` whose ``global_`` is
         ``(NetParams, actor_opt, critic_opt)`` and whose ``snapshots`` are the workers'
         :class:`NetParams` ``[W]`` (split over devices), with their sync versions.
-      env_state: ``State [K]`` of the wrapped env.
-      key: PRNG key of the run.
-      iteration: ``[]`` int32 rounds done.
     """
 
     push: PushState
-    env_state: State
-    key: jax.Array
-    iteration: jax.Array
 
 
 def make_networks(config: A2CConfig, action_size: int) -> tuple[GaussianActor, Critic]:

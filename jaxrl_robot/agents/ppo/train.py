@@ -52,8 +52,9 @@ _LANES = parallel.LANES
 
 
 @struct.dataclass
-class PPOState:
-    """Everything a PPO run needs to continue exactly.
+class PPOState(common.RunState):
+    """Everything a PPO run needs to continue exactly: the lanes' ``env_state [K]``, ``key`` and
+    ``iteration`` (iterations done) of :class:`~jaxrl_robot.agents.common.RunState`, and
 
     Attributes:
       actor_params, actor_stats: actor ``params`` and ``batch_stats`` (``{}`` without batch-norm).
@@ -61,12 +62,9 @@ class PPOState:
       actor_opt, critic_opt: Adam states.
       obs_stats: observation normaliser (unused unless ``normalize_obs``).
       kl_beta: ``[]`` β of the adaptive KL penalty.
-      env_state: ``State [K]`` of the wrapped env (lanes split over devices).
       memory: ``[K, ...]`` per-lane LSTM states ``{"actor": (c, h), "critic": (c, h)}`` (``()`` for the MLP).
       start_table: ``[max_steps + 1, ...]`` the start-state table (``()`` unless policy='lstm'
         with lstm_start 'table').
-      key: PRNG key of the run.
-      iteration: ``[]`` int32 iterations done.
     """
 
     actor_params: Any
@@ -76,11 +74,8 @@ class PPOState:
     critic_opt: Any
     obs_stats: RunningStats
     kl_beta: jax.Array
-    env_state: State
     memory: Any
     start_table: Any
-    key: jax.Array
-    iteration: jax.Array
 
 
 def make_networks(config: PPOConfig, action_size: int) -> tuple[Any, Any]:
