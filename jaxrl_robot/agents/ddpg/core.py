@@ -4,12 +4,14 @@
 acting (:mod:`~jaxrl_robot.agents.ddpg.acting`) and learner
 (:mod:`~jaxrl_robot.agents.ddpg.learner`); :func:`init_state` draws the initial
 :class:`DDPGState`; :func:`store` writes an iteration's rows into the replay; :func:`run_chunk`
-runs a chunk of iterations and turns their sums into the chunk's metrics.  A trainer supplies
-only its iteration.
+runs a chunk of iterations and turns their sums into the chunk's metrics; :func:`make_trainer_of`
+splits a chunk over the lanes and returns the :class:`~jaxrl_robot.types.Trainer`.  A trainer
+supplies only its iteration.
 """
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
@@ -31,7 +33,7 @@ from jaxrl_robot.agents.ddpg.networks import DDPGActor, DDPGCritic
 from jaxrl_robot.networks import init_running_stats, update_running_stats
 from jaxrl_robot.noise import NoiseState
 from jaxrl_robot.replay import Transition, make_her, make_prioritized_replay, make_uniform_replay
-from jaxrl_robot.types import Metrics, Policy, RunningStats
+from jaxrl_robot.types import Metrics, Policy, RunningStats, Trainer
 
 __all__ = [
     "GOAL_API",
@@ -40,6 +42,7 @@ __all__ = [
     "episode_means",
     "greedy_policy",
     "init_state",
+    "make_trainer_of",
     "noise_factor",
     "run_chunk",
     "setup",
@@ -124,7 +127,9 @@ class Setup(NamedTuple):
     imitation: Imitation | None
 
 
-def setup(config: DDPGConfig, env: Env, mesh: jax.sharding.Mesh | None, iterations_per_update: int | None) -> Setup:
+def setup(
+    config: DDPGConfig, env: Env, mesh: jax.sharding.Mesh | None = None, iterations_per_update: int | None = None
+) -> Setup:
     """Validate ``config`` for ``env`` and build the :class:`Setup` (see ``make_trainer`` for the arguments).
 
     Raises:
@@ -297,3 +302,16 @@ def greedy_policy(s: Setup, state: DDPGState) -> Policy:
         return s.acting.act(state.actor_params, s.acting.norm(state.obs_stats, obs))
 
     return greedy
+
+
+def make_trainer_of(s: Setup, init: Callable[[jax.Array], DDPGState], chunk_fn: Callable, specs: Any) -> Trainer:
+    """The :class:`~jaxrl_robot.types.Trainer` of a DDPG variant: ``init``, ``chunk_fn`` (state -> (state,
+    metrics), one chunk) split over the lanes with the state's partition ``specs``, the greedy policy."""
+    update = parallel.shard_lanes(chunk_fn, s.mesh, in_specs=(specs,), out_specs=(specs, parallel.P()))
+    return Trainer(
+        init=init,
+        update=update,
+        policy=functools.partial(greedy_policy, s),
+        num_updates=s.num_updates,
+        env_steps_per_update=s.steps_per_iteration * s.chunk,
+    )

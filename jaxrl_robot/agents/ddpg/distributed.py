@@ -52,7 +52,6 @@ act with the global parameters); ``collect_*`` are the collecting workers'.
 
 from __future__ import annotations
 
-import functools
 from typing import Any
 
 import jax
@@ -115,14 +114,9 @@ def _ungroup(x: jax.Array) -> jax.Array:
     return x.reshape((-1,) + x.shape[2:])
 
 
-def make_distributed_trainer(
-    config: DDPGConfig,
-    env: Env,
-    *,
-    mesh: jax.sharding.Mesh | None = None,
-    iterations_per_update: int | None = None,
-) -> Trainer:
-    """The distributed DDPG :class:`~jaxrl_robot.types.Trainer` (arguments as ``make_trainer``).
+def make_distributed_trainer(config: DDPGConfig, env: Env, **options: Any) -> Trainer:
+    """The distributed DDPG :class:`~jaxrl_robot.types.Trainer`; ``options`` are ``make_trainer``'s
+    keywords (``mesh``, ``iterations_per_update``), which hands distributed configs to this function.
 
     Raises:
       ConfigError: as ``make_trainer``; ``distributed`` must be set.
@@ -130,7 +124,7 @@ def make_distributed_trainer(
     """
     if not config.distributed:
         raise ValueError("make_distributed_trainer needs distributed=True")
-    s = core.setup(config, env, mesh, iterations_per_update)
+    s = core.setup(config, env, **options)
     devices = s.mesh.shape[parallel.LANES]
     for name in ("sync_workers", "collect_workers"):
         if getattr(config, name) % devices:
@@ -234,11 +228,4 @@ def make_distributed_trainer(
         return state, metrics
 
     specs = core.state_specs(DistributedDDPGState, collectors=lanes if C else None)
-    update = parallel.shard_lanes(chunk_fn, s.mesh, in_specs=(specs,), out_specs=(specs, same))
-    return Trainer(
-        init=init,
-        update=update,
-        policy=functools.partial(core.greedy_policy, s),
-        num_updates=s.num_updates,
-        env_steps_per_update=s.steps_per_iteration * s.chunk,
-    )
+    return core.make_trainer_of(s, init, chunk_fn, specs)

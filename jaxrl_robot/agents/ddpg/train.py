@@ -31,13 +31,13 @@ result on any number of devices (up to float summation order of the episode metr
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
 from brax.envs.base import Env
 
 from jaxrl_robot import parallel
+from jaxrl_robot.agents import common
 from jaxrl_robot.agents.ddpg import core
 from jaxrl_robot.agents.ddpg.config import DDPGConfig
 from jaxrl_robot.agents.ddpg.core import DDPGState
@@ -110,32 +110,10 @@ def make_trainer(
             metrics["imitation_loss"] = jnp.nanmean(extra) if extra.size else jnp.nan
         return state, metrics
 
-    specs = core.state_specs()
-    update = parallel.shard_lanes(chunk_fn, s.mesh, in_specs=(specs,), out_specs=(specs, parallel.P()))
-    return Trainer(
-        init=functools.partial(core.init_state, s),
-        update=update,
-        policy=functools.partial(core.greedy_policy, s),
-        num_updates=s.num_updates,
-        env_steps_per_update=s.steps_per_iteration * s.chunk,
-    )
+    return core.make_trainer_of(s, functools.partial(core.init_state, s), chunk_fn, core.state_specs())
 
 
-def make_train(
-    config: DDPGConfig,
-    env: Env,
-    *,
-    mesh: jax.sharding.Mesh | None = None,
-    iterations_per_update: int | None = None,
-) -> Callable[[jax.Array], tuple[DDPGState, Metrics]]:
-    """``train(key) -> (final state, metrics [num_updates])``: the whole run, pure and jittable.
-
-    ``mesh``: as :func:`make_trainer` (default: all devices); ``config.distributed`` as there.
-    """
-    trainer = make_trainer(config, env, mesh=mesh, iterations_per_update=iterations_per_update)
-
-    def train(key: jax.Array) -> tuple[DDPGState, Metrics]:
-        state = trainer.init(key)
-        return jax.lax.scan(lambda s, _: trainer.update(s), state, None, length=trainer.num_updates)
-
-    return train
+make_train = common.make_train_for(make_trainer)
+"""``make_train(config, env, *, mesh=None, iterations_per_update=None) -> train``: ``train(key) -> (final
+DDPGState, metrics [num_updates])``, the whole run, pure and jittable (``config.distributed`` as in
+:func:`make_trainer`)."""
