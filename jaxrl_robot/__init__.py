@@ -7,24 +7,13 @@ replay buffers and evaluation helpers, designed to be imported into other JAX co
 __version__ = "0.1.0"
 
 import envs_mjx  # noqa: E402, F401  (first: it imports MJX quietly, before brax does)
-from jaxrl_robot import noise, recurrent, replay  # noqa: E402
+from jaxrl_robot import networks, noise, recurrent, replay  # noqa: E402
 from jaxrl_robot.agents import a2c, ddpg, ppo  # noqa: E402
 from jaxrl_robot.agents.a2c import A2CConfig, A3CConfig  # noqa: E402
 from jaxrl_robot.agents.ddpg import DDPGConfig  # noqa: E402
 from jaxrl_robot.agents.ppo import PPOConfig  # noqa: E402
 from jaxrl_robot.evaluation import run_test_episodes, summarize_episodes, tracking_error_sums  # noqa: E402
-from jaxrl_robot.networks import (  # noqa: E402
-    Critic,
-    GaussianActor,
-    apply_actor,
-    gaussian_entropy,
-    gaussian_kl,
-    gaussian_log_prob,
-    gaussian_sample,
-    init_running_stats,
-    normalize,
-    update_running_stats,
-)
+from jaxrl_robot.networks import *  # noqa: E402, F403  (networks.__all__, listed once there)
 from jaxrl_robot.noise import make_gaussian_noise, make_ou_noise  # noqa: E402
 from jaxrl_robot.replay import make_her, make_prioritized_replay, make_uniform_replay  # noqa: E402
 from jaxrl_robot.returns import gae, lambda_returns, n_step_returns, td_errors  # noqa: E402
@@ -37,17 +26,8 @@ __all__ = [
     "lambda_returns",
     "n_step_returns",
     "td_errors",
-    # networks
-    "Critic",
-    "GaussianActor",
-    "apply_actor",
-    "gaussian_entropy",
-    "gaussian_kl",
-    "gaussian_log_prob",
-    "gaussian_sample",
-    "init_running_stats",
-    "normalize",
-    "update_running_stats",
+    # networks: the actor, critic, Gaussian-policy and observation-normaliser helpers (networks.__all__)
+    *networks.__all__,
     # shared types: a Trainer is what train/common.py drives
     "RecurrentPolicy",
     "RunningStats",
