@@ -3,6 +3,7 @@
     python -m benchmarks.thesis                              # every table, 3 seeds, preset auto
     python -m benchmarks.thesis --tables 3.1 4.1 --seeds 1 --preset cpu
     python -m benchmarks.thesis --list                       # the rows and their commands
+    python -m benchmarks.thesis --variant precise --tables 3.1 4.1 5.1   # the arm at a 1 cm goal
 
 Each row of thesis Tables 3.1, 4.1, 4.3–4.5, 5.1, 5.4–5.7 and 6.2–6.3 is one command line of
 ``train/`` (``python -m train.<algo> ...``, run in this process) per seed, with ``--preset``,
@@ -24,6 +25,10 @@ thesis's best over its methods per axis; driving: ≥ 19 / 20 per road), wall ti
 device and the exact command — plus figures in ``<out>/thesis-<device>-<preset>-figures/``: per
 table the learning curves of its rows (mean over seeds, min–max band) and, for tracking rows,
 seed 0's reference-vs-path and per-axis error plots drawn by the run.
+
+``--variant precise`` runs the arm rows (Tables 3.1, 4.1, 5.1) on ``arm7_precise`` (1 cm goal threshold
+instead of 5 cm, ``envs_mjx.arm7.Arm7Precise``), where the methods separate: a row is met there at
+≥ 95 % success within 2 cm and ≥ 90 % within 1 cm; its report and runs carry ``-precise`` in their names.
 
 ``--smoke`` shrinks every row's budget to seconds (checks the plumbing, not the numbers).
 Seeds run one after another (each a command-line run); vmapped seeds for the tracking rows:
@@ -49,12 +54,16 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks import provenance
 from benchmarks.tracking_report import GOAL, THESIS
 from benchmarks.train_throughput import RESULTS, device_label
 from jaxrl_robot import plots
 from jaxrl_robot.logging import read_csv
 
 ARM_GOAL = 95.0
+PRECISE_GOAL = (95.0, 90.0)
+"""``--variant precise``: success within 2 cm and within 1 cm, % (every arm row)."""
+VARIANTS = ("standard", "precise")
 ROADS = ("train", "test1", "test2", "test3")
 RACING_THESIS = {  # per road: (success, collision, out of track, overtakes) of 20 laps, Tables 6.2 and 6.3
     "ddpg": ((18, 2, 0, 2.65), (16, 2, 2, 2.55), (17, 2, 1, 2.6), (18, 1, 1, 2.85)),
@@ -169,6 +178,20 @@ SMOKE = {  # budgets of seconds: the plumbing, not the numbers
 }  # fmt: skip
 
 
+def precise_row(row: Row) -> Row:
+    """``row`` on ``arm7_precise`` (arm rows; any other row unchanged)."""
+    if row.kind != "arm":
+        return row
+    argv = tuple("arm7_precise" if a == "arm7" and i and row.argv[i - 1] == "--env" else a
+                 for i, a in enumerate(row.argv))  # fmt: skip
+    return dataclasses.replace(row, argv=argv)
+
+
+def is_precise(row: Row | dict) -> bool:
+    argv = row.argv if isinstance(row, Row) else row["argv"]
+    return "arm7_precise" in argv
+
+
 def smoke_args(row: Row) -> tuple[str, ...]:
     algo = {"a3c": "a2c", "td3": "ddpg"}.get(row.algo, row.algo)
     return SMOKE[(algo, row.kind)]
@@ -226,6 +249,11 @@ def row_figure(row: Row, seeds: list[dict]) -> dict[str, Any]:
         out.update(laps=laps, collisions=crashes.mean(0).tolist(),
                    overtakes=[float(np.mean([s[f"{road}/overtakes"] for s in done])) for road in ROADS],
                    speed_kmh=[float(np.mean([s[f"{road}/speed_kmh"] for s in done])) for road in ROADS])  # fmt: skip
+    elif row.kind == "arm" and is_precise(row):  # within 2 cm and within 1 cm, every seed's figures
+        vals = np.array([[100.0 * s["success_2cm"], 100.0 * s["success_1cm"]] for s in done])
+        goal = np.array(PRECISE_GOAL)
+        met = vals.mean(0) >= goal
+        out["precision"] = [100.0 * float(np.mean([s["success_5cm"] for s in done]))]
     elif row.kind == "arm":
         vals = np.array([[100.0 * s["success_rate"]] for s in done])
         goal = np.array([ARM_GOAL])
@@ -251,7 +279,12 @@ def table_markdown(table: str, results: list[dict], fig_dir: str, rel: str) -> l
     lines = [f"## {TITLES[table]}", ""]
     rows = [r for r in results if r["row"]["table"] == table]
     kind = rows[0]["row"]["kind"]
-    if kind == "arm":
+    precise = kind == "arm" and is_precise(rows[0]["row"])
+    if precise:
+        lines += ["| row | thesis (5 cm) | ours within 2 cm | ours within 1 cm | seeds (2 cm / 1 cm) "
+                  "| met (≥ 95 / ≥ 90) | within 5 cm | wall s | command |",
+                  "|---|---:|---:|---:|---|---|---:|---:|---|"]  # fmt: skip
+    elif kind == "arm":
         lines += ["| row | thesis | ours (mean ± std) | seeds | met (≥ 95) | at 2 cm / 1 cm | wall s | command |",
                   "|---|---:|---:|---|---|---:|---:|---|"]
     elif kind == "tracking":
@@ -273,7 +306,7 @@ def table_markdown(table: str, results: list[dict], fig_dir: str, rel: str) -> l
         if not fig.get("seeds_done"):
             errors = "; ".join(s.get("error", "") for s in r["seeds"])
             lines.append(f"| {row['label']} | {row['thesis']} | **not run** ({errors or 'no seed finished'}) |"
-                         + " |" * (7 if kind == "arm" else 8))  # fmt: skip
+                         + " |" * (6 if precise else 7 if kind == "arm" else 8))  # fmt: skip
             continue
         per_seed = "; ".join(" / ".join(f"{v:.2f}" if kind == "tracking" else f"{v:.0f}" for v in s)
                              for s in fig["values"])  # fmt: skip
@@ -287,6 +320,11 @@ def table_markdown(table: str, results: list[dict], fig_dir: str, rel: str) -> l
                              f"{fig['collisions'][i]:.1f} | {fig['overtakes'][i]:.2f} | {fig['speed_kmh'][i]:.0f} | "
                              f"{each} ({fig['seeds_done']}/{fig['seeds']}) | {'yes' if fig['met'][i] else 'no'} | "
                              f"{fig['wall_s']:.0f} | {cmd if i == 0 else ''} |")  # fmt: skip
+        elif precise:
+            cells = " | ".join(_cell(m, s, ok, 1) for m, s, ok in zip(fig["mean"], fig["std"], fig["met"], strict=True))
+            met = "yes" if all(fig["met"]) else "no"
+            lines.append(f"| {row['label']} | {row['thesis']} | {cells} | {seeds} | {met} "
+                         f"| {fig['precision'][0]:.1f} | {fig['wall_s']:.0f} | {cmd} |")  # fmt: skip
         elif kind == "arm":
             cell = _cell(fig["mean"][0], fig["std"][0], fig["met"][0], 1)
             precise = " / ".join(f"{v:.1f}" for v in fig.get("precision", ())) or "—"
@@ -326,8 +364,11 @@ def summary_markdown(results: list[dict]) -> list[str]:
         best = max(arm, key=lambda r: r["figure"]["mean"][0])
         worst = min(arm, key=lambda r: r["figure"]["mean"][0])
         thesis = max(r["row"]["thesis"] for r in results if r["row"]["kind"] == "arm")
-        lines.append(f"| 7.1 arm, best row | {thesis} | {best['figure']['mean'][0]:.1f} ({best['row']['label']}) "
-                     f"| ≥ {ARM_GOAL:.0f} every row | lowest row {worst['figure']['mean'][0]:.1f} |")  # fmt: skip
+        within = " (within 2 cm)" if is_precise(best["row"]) else ""
+        goal = f"≥ {PRECISE_GOAL[0]:.0f} within 2 cm" if within else f"≥ {ARM_GOAL:.0f}"
+        lines.append(f"| 7.1 arm, best row{within} | {thesis} "
+                     f"| {best['figure']['mean'][0]:.1f} ({best['row']['label']}) "
+                     f"| {goal} every row | lowest row {worst['figure']['mean'][0]:.1f} |")  # fmt: skip
     for ref in ("scara", "sine", "ellipse"):
         rs = [r for r in results if r["row"]["reference"] == ref]
         if not rs:
@@ -352,12 +393,15 @@ def report(results: list[dict], meta: dict[str, Any], stem: str) -> str:
     os.makedirs(fig_dir, exist_ok=True)
     rel = os.path.basename(fig_dir)
     lines = [
-        f"# The thesis's tables with jaxrl-robot — {meta['device']}, `{meta['preset']}` preset",
+        f"# The thesis's tables with jaxrl-robot — {meta['device']}, `{meta['preset']}` preset"
+        + (", the arm at a 1 cm goal (`arm7_precise`)" if meta.get("variant") == "precise" else ""),
         "",
         f"`{meta['command']}` at commit {meta['commit']} (jax {meta['jax']}, {meta['date']}); {meta['seeds']} "
         f"seed(s) per row, each one command-line run; the rows' runs took {meta['runs_wall_s']:.0f} s in all "
         f"(this invocation {meta['wall_s']:.0f} s)"
-        + (" (smoke budgets: not results)" if meta["smoke"] else "") + ". Bold: at the goal (arm ≥ 95 % per row; "
+        + (" (smoke budgets: not results)" if meta["smoke"] else "") + ". Bold: at the goal (arm ≥ 95 % per row"
+        + ("; precise variant: ≥ 95 % within 2 cm and ≥ 90 % within 1 cm" if meta.get("variant") == "precise" else "")
+        + "; "
         "tracking ≤ ½ of the thesis's best over all its methods, per axis; racing ≥ 19 of 20 laps per road with "
         "at most 1 collision, every seed).",
         "",
@@ -366,16 +410,20 @@ def report(results: list[dict], meta: dict[str, Any], stem: str) -> str:
         lines += table_markdown(table, results, fig_dir, rel)
     lines += summary_markdown(results)
     text = "\n".join(lines)
-    with open(stem + ".md", "w") as f:
-        f.write(text)
-    with open(stem + ".json", "w") as f:
-        json.dump({"meta": meta, "rows": results}, f, indent=1, default=float)
-    return text
+    prov = meta.get("provenance")
+    if prov is None:  # called without a record (the tests): the plain files
+        with open(stem + ".md", "w") as f:
+            f.write(text)
+        with open(stem + ".json", "w") as f:
+            json.dump({"meta": meta, "rows": results}, f, indent=1, default=float)
+        return text
+    return provenance.write(stem, {"provenance": prov, "meta": meta, "rows": results}, text)
 
 
-def select(tables: Sequence[str] | None, names: Sequence[str] | None) -> list[Row]:
-    """The rows of ``tables`` (default all), narrowed to ``names`` (row ids ``table/name`` or names)."""
-    rows = [r for r in ROWS if not tables or r.table in tables]
+def select(tables: Sequence[str] | None, names: Sequence[str] | None, variant: str = "standard") -> list[Row]:
+    """The rows of ``tables`` (default all), narrowed to ``names`` (row ids ``table/name`` or names);
+    ``variant='precise'``: the arm rows on ``arm7_precise``."""
+    rows = [precise_row(r) if variant == "precise" else r for r in ROWS if not tables or r.table in tables]
     if names:
         rows = [r for r in rows if r.id in names or r.name in names]
     return rows
@@ -392,7 +440,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--rows", nargs="+", default=None, help="only these rows (table/name or name; see --list)")
     p.add_argument("--seeds", type=int, default=3)
     p.add_argument("--preset", default="auto", choices=["auto", "thesis", "cpu", "fast"])
-    p.add_argument("--runs", default=None, help="run directories (default runs/thesis-<preset>)")
+    p.add_argument("--variant", default="standard", choices=VARIANTS,
+                   help="precise: the arm rows on arm7_precise (1 cm goal; met at >= 95 %% within 2 cm and >= 90 %% "
+                   "within 1 cm)")
+    p.add_argument("--runs", default=None, help="run directories (default runs/thesis-<preset>[-precise])")
     p.add_argument("--out", default=RESULTS, help="where the report goes")
     p.add_argument("--smoke", action="store_true", help="tiny budgets: checks the plumbing, not the numbers")
     p.add_argument("--quiet", action="store_true", help="hide the runs' own output")
@@ -401,8 +452,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     argv = sys.argv[1:] if argv is None else list(argv)
     args = p.parse_args(argv)
     args.preset = resolve_preset(args.preset)
-    args.runs = args.runs or os.path.join("runs", f"thesis-{args.preset}")
-    rows = select(args.tables, args.rows)
+    suffix = "-precise" if args.variant == "precise" else ""
+    args.runs = args.runs or os.path.join("runs", f"thesis-{args.preset}{suffix}")
+    rows = select(args.tables, args.rows, args.variant)
     if not rows:
         raise SystemExit(f"error: --rows {args.rows} matches no row of tables {args.tables or 'all'}; see --list")
     console = Console(stderr=True)
@@ -413,11 +465,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             print(f"{r.id:24s} {r.label}: {cmd}")
         return {}
     git = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
-    meta = {"device": device_label(), "preset": args.preset, "seeds": args.seeds, "smoke": args.smoke,
-            "command": "python -m benchmarks.thesis " + " ".join(argv), "jax": jax.__version__,
+    prov = provenance.record("benchmarks.thesis", argv, seeds=list(range(args.seeds)), commit=args.commit,
+                             run_directories=f"{args.runs}; each seed's eval.json and config.json kept under runs/")
+    meta = {"device": device_label(), "preset": args.preset, "variant": args.variant, "seeds": args.seeds,
+            "smoke": args.smoke, "command": "python -m benchmarks.thesis " + " ".join(argv), "jax": jax.__version__,
             "commit": args.commit or git.stdout.strip() or "unknown",
-            "date": time.strftime("%Y-%m-%d %H:%M")}  # fmt: skip
-    stem = os.path.join(args.out, f"thesis-{device_label()}-{args.preset}" + ("-smoke" if args.smoke else ""))
+            "date": time.strftime("%Y-%m-%d %H:%M"), "provenance": prov}  # fmt: skip
+    stem = os.path.join(args.out, f"thesis-{device_label()}-{args.preset}{suffix}" + ("-smoke" if args.smoke else ""))
     jobs = [(r, s) for r in rows if r.algo for s in range(args.seeds)]
     t_start, ran, spent = time.perf_counter(), 0, 0.0
     by_row: dict[str, list[dict]] = {r.id: [] for r in rows}
@@ -431,6 +485,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         if "error" in got:
             console.print(f"  [red]{row.id} seed {seed}: {got['error']}[/red]")
         by_row[row.id].append(got)
+        if got.get("run_dir") and not args.smoke:
+            provenance.keep_run(got["run_dir"], stem)
     meta["wall_s"] = time.perf_counter() - t_start
     results = [{"row": dataclasses.asdict(r), "command": command(r, args.preset, 0, args.smoke) if r.algo else [],
                 "seeds": by_row[r.id], "figure": row_figure(r, by_row[r.id])} for r in rows]  # fmt: skip

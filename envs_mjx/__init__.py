@@ -29,6 +29,7 @@ from envs_mjx.config import ConfigError  # noqa: E402
 # name -> "module:Class"; imported lazily so that `names()` costs nothing.
 _REGISTRY: dict[str, str] = {
     "arm7": "envs_mjx.arm7:Arm7",
+    "arm7_precise": "envs_mjx.arm7:Arm7Precise",
     "racecar": "envs_mjx.racecar:RaceCar",
     "scara": "envs_mjx.scara:Scara",
     "unicycle": "envs_mjx.unicycle:Unicycle",

@@ -77,3 +77,31 @@ def test_racing_rows_by_hand(tmp_path):
     body = [line for line in lines if line.startswith("| ") and "---" not in line][1:]
     assert [line.split(" | ")[1] for line in body] == list(thesis.ROADS)
     assert "18 / 2 / 0 / 2.6" in body[0] and "**19.5 ± 0.5** of 20" in body[0] and "19.0 ± 1.0 of 20" in body[2]
+
+
+def test_precise_variant_rows_by_hand(tmp_path):
+    """``--variant precise``: the arm rows run on ``arm7_precise`` (arm7 at a 1 cm goal, nothing else changed);
+    a row is met at ≥ 95 % within 2 cm and ≥ 90 % within 1 cm (mean over seeds), tracking rows unchanged."""
+    import envs_mjx
+
+    precise, plain = envs_mjx.make("arm7_precise"), envs_mjx.make("arm7")
+    assert precise.config == dataclasses.replace(plain.config, goal_threshold=0.01)
+    rows = thesis.select(["5.1", "4.4"], None, "precise")
+    arm = [r for r in rows if r.kind == "arm"]
+    assert [r.argv[:2] for r in arm] == [("--env", "arm7_precise")] * 2 and all(thesis.is_precise(r) for r in arm)
+    assert [r for r in rows if r.kind != "arm"] == [r for r in thesis.ROWS if r.table == "4.4"]
+    assert thesis.command(arm[1], "cpu", 2, False)[-4:] == ["--preset", "cpu", "--seed", "2"]
+
+    def seed(at5, at2, at1):
+        return {"success_rate": at1, "success_5cm": at5, "success_2cm": at2, "success_1cm": at1, "wall_s": 5.0,
+                "run_dir": str(tmp_path)}  # fmt: skip
+
+    seeds = [seed(1.0, 0.97, 0.92), seed(0.99, 0.95, 0.86)]
+    fig = thesis.row_figure(arm[1], seeds)
+    assert fig["values"] == [[97.0, 92.0], [95.0, 86.0]] and fig["mean"] == [96.0, 89.0]
+    assert fig["met"] == [True, False] and fig["precision"] == [99.5]  # 1 cm misses 90 on the mean
+    result = {"row": dataclasses.asdict(arm[1]), "command": list(arm[1].argv), "seeds": seeds, "figure": fig}
+    lines = thesis.table_markdown("5.1", [result], str(tmp_path), "figs")
+    (line,) = [x for x in lines if x.startswith("| Distributed PPO")]
+    cells = line.split(" | ")
+    assert cells[2:6] == ["**96.0 ± 1.0**", "89.0 ± 3.0", "97 / 92; 95 / 86 (2/2)", "no"] and cells[6] == "99.5"
