@@ -16,7 +16,8 @@ are listed as **missing** with the reason.
 
 Resumable: a seed whose run directory has ``eval.json`` is done and skipped; a run directory
 without it (a killed run) continues with ``--resume``; rerunning the command finishes the rest
-and rewrites the report.
+and rewrites the report.  The report is rewritten after every finished row, so a killed
+invocation leaves the rows it finished.
 
 Report: ``<out>/thesis-<device>-<preset>.md`` (and ``.json``), one section per table — the
 thesis's figure, ours as mean ± std over seeds with the per-seed values, met / not met against
@@ -487,13 +488,22 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         by_row[row.id].append(got)
         if got.get("run_dir") and not args.smoke:
             provenance.keep_run(got["run_dir"], stem)
+        if len(by_row[row.id]) == args.seeds and i + 1 < len(jobs):  # a row done: the report so far
+            report(collect(rows, by_row, args, meta, t_start), meta, stem)
+    results = collect(rows, by_row, args, meta, t_start)
+    report(results, meta, stem)
+    console.print(f"report: {stem}.md")
+    return {"meta": meta, "rows": results, "stem": stem}
+
+
+def collect(rows: list[Row], by_row: dict[str, list[dict]], args: argparse.Namespace, meta: dict,
+            t_start: float) -> list[dict]:  # fmt: skip
+    """Every row's seeds so far and its figure; sets ``meta``'s wall times."""
     meta["wall_s"] = time.perf_counter() - t_start
     results = [{"row": dataclasses.asdict(r), "command": command(r, args.preset, 0, args.smoke) if r.algo else [],
                 "seeds": by_row[r.id], "figure": row_figure(r, by_row[r.id])} for r in rows]  # fmt: skip
     meta["runs_wall_s"] = float(sum(r["figure"].get("wall_s", 0.0) for r in results))
-    report(results, meta, stem)
-    console.print(f"report: {stem}.md")
-    return {"meta": meta, "rows": results, "stem": stem}
+    return results
 
 
 if __name__ == "__main__":
