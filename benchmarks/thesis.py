@@ -389,7 +389,8 @@ def summary_markdown(results: list[dict]) -> list[str]:
 
 
 def report(results: list[dict], meta: dict[str, Any], stem: str) -> str:
-    """Write ``stem.md`` / ``stem.json`` (figures in ``stem-figures/``); returns the markdown."""
+    """Write ``stem.md`` / ``stem.json`` with ``meta["provenance"]`` (figures in ``stem-figures/``); returns the
+    markdown."""
     fig_dir = stem + "-figures"
     os.makedirs(fig_dir, exist_ok=True)
     rel = os.path.basename(fig_dir)
@@ -411,14 +412,7 @@ def report(results: list[dict], meta: dict[str, Any], stem: str) -> str:
         lines += table_markdown(table, results, fig_dir, rel)
     lines += summary_markdown(results)
     text = "\n".join(lines)
-    prov = meta.get("provenance")
-    if prov is None:  # called without a record (the tests): the plain files
-        with open(stem + ".md", "w") as f:
-            f.write(text)
-        with open(stem + ".json", "w") as f:
-            json.dump({"meta": meta, "rows": results}, f, indent=1, default=float)
-        return text
-    return provenance.write(stem, {"provenance": prov, "meta": meta, "rows": results}, text)
+    return provenance.write(stem, {"provenance": meta["provenance"], "meta": meta, "rows": results}, text)
 
 
 def select(tables: Sequence[str] | None, names: Sequence[str] | None, variant: str = "standard") -> list[Row]:
