@@ -47,7 +47,6 @@ import io
 import json
 import os
 import shutil
-import subprocess
 import sys
 import time
 from collections.abc import Sequence
@@ -459,12 +458,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             cmd = f"python -m train.{r.algo} {flags}" if r.algo else f"missing: {r.missing}"
             print(f"{r.id:24s} {r.label}: {cmd}")
         return {}
-    git = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
     prov = provenance.record("benchmarks.thesis", argv, seeds=list(range(args.seeds)), commit=args.commit,
                              run_directories=f"{args.runs}; each seed's eval.json and config.json kept under runs/")
     meta = {"device": device_label(), "preset": args.preset, "variant": args.variant, "seeds": args.seeds,
             "smoke": args.smoke, "command": "python -m benchmarks.thesis " + " ".join(argv), "jax": jax.__version__,
-            "commit": args.commit or git.stdout.strip() or "unknown",
+            "commit": prov["commit"][:12],
             "date": time.strftime("%Y-%m-%d %H:%M"), "provenance": prov}  # fmt: skip
     stem = os.path.join(args.out, f"thesis-{device_label()}-{args.preset}{suffix}" + ("-smoke" if args.smoke else ""))
     jobs = [(r, s) for r in rows if r.algo for s in range(args.seeds)]
