@@ -89,6 +89,7 @@ __all__ = [
     "NonFiniteLossError",
     "RunDirError",
     "RunOptions",
+    "RunSettings",
     "RunSpec",
     "cli_main",
     "env_overrides",
@@ -103,6 +104,7 @@ __all__ = [
     "make_run_dir",
     "preparse",
     "run",
+    "settings_of",
     "use_progress_bar",
 ]
 
@@ -119,8 +121,36 @@ class NonFiniteLossError(RuntimeError):
 
 
 @dataclasses.dataclass
-class RunSpec:
-    """What an algorithm's CLI hands to :func:`run`.
+class RunSettings:
+    """How a run is driven, saved and evaluated: the part of :class:`RunOptions` that
+    :func:`run` reads (through :class:`RunSpec`)."""
+
+    seed: int = 0
+    """Random seed of the run (training); evaluation uses a separate stream derived from it."""
+    out: str = "runs"
+    """Parent folder of the run directory runs/<algo>-<env>-<time>/."""
+    checkpoint_every: int = 10
+    """Chunks between checkpoints (the last chunk is always saved)."""
+    eval_episodes: int = 100
+    """Test episodes of the final evaluation (reaching envs)."""
+    precision: bool = True
+    """Reaching envs with a goal threshold (arm7): also report success at 5, 2 and 1 cm."""
+    stop_after_steps: int = 0
+    """Stop early, resumably, once this many env steps are done (0: run to the end)."""
+    progress: bool | None = None
+    """Show a progress bar (default: only on a terminal and not under CI)."""
+
+
+def settings_of(options: Any) -> dict[str, Any]:
+    """The :class:`RunSettings` fields of ``options`` (a :class:`RunOptions`), as keywords."""
+    return {f.name: getattr(options, f.name) for f in dataclasses.fields(RunSettings)}
+
+
+@dataclasses.dataclass(kw_only=True)
+class RunSpec(RunSettings):
+    """What an algorithm's CLI hands to :func:`run`: the :class:`RunSettings` (``seed``, ``out``,
+    ``checkpoint_every``, ``eval_episodes``, ``precision``, ``stop_after_steps``, ``progress``;
+    ``progress=None`` decides by :func:`use_progress_bar`) and what the run is made of.
 
     Attributes:
       algo: algorithm name for the run directory (``"ppo"``).
@@ -128,16 +158,8 @@ class RunSpec:
       env: the unbatched environment (used for evaluation).
       trainer: the algorithm's :class:`~jaxrl_robot.types.Trainer`.
       config: JSON-able dict that rebuilds the run (saved as ``config.json``).
-      seed: training seed; ``PRNGKey(seed)`` goes to ``trainer.init``.
-      out: parent folder of new run directories.
       run_dir: an existing run directory to resume (``None``: start a new run).
-      checkpoint_every: chunks between checkpoints (the last chunk is always saved).
-      eval_episodes: test episodes for reaching envs.
-      precision: reaching envs with a goal threshold: also report success at 5, 2 and 1 cm
-        (:func:`evaluate`).
       episode_length: step limit of a test episode (0: ``env.episode_length``).
-      stop_after_steps: stop (resumably) once this many env steps are done; 0 runs to the end.
-      progress: draw a progress bar; ``None`` decides by :func:`use_progress_bar`.
     """
 
     algo: str
@@ -145,15 +167,8 @@ class RunSpec:
     env: Env
     trainer: Trainer
     config: dict[str, Any]
-    seed: int = 0
-    out: str = "runs"
     run_dir: str | None = None
-    checkpoint_every: int = 10
-    eval_episodes: int = 100
-    precision: bool = True
     episode_length: int = 0
-    stop_after_steps: int = 0
-    progress: bool | None = None
 
 
 def use_progress_bar() -> bool:
@@ -532,39 +547,26 @@ def run(spec: RunSpec) -> dict[str, Any]:
 
 
 @dataclasses.dataclass
-class RunOptions:
-    """The options of a run that every ``python -m train.<algo>`` shares (its ``Args`` extends this)."""
+class RunOptions(RunSettings):
+    """The options of a run that every ``python -m train.<algo>`` shares (its ``Args`` extends this):
+    the :class:`RunSettings` and the ones below."""
 
     env: str = "arm7"
     """Environment: a registered name (envs_mjx.names()) or brax:<name> for brax's own envs."""
     preset: str = "auto"
     """Hyper-parameter preset: auto (fast on a GPU, else cpu), thesis, cpu or fast.
     PPO, A2C and A3C presets run arm7 in kinematic mode under thesis and cpu (--env-config overrides)."""
-    seed: int = 0
-    """Random seed of the run (training); evaluation uses a separate stream derived from it."""
     reward: str | None = None
     """Reward function of the env (arm7: sparse, shaped, ordinary, path); None keeps the env's default."""
     env_config: tuple[str, ...] = ()
     """Further env settings as KEY=VALUE (e.g. mode=kinematic, trajectory=ellipse, obs=no_goal)."""
-    out: str = "runs"
-    """Parent folder of the run directory runs/<algo>-<env>-<time>/."""
     resume: str | None = None
     """Continue the run in this directory (its config.json is used; other flags are ignored).
     --stop-after-steps, --progress and the process options apply as given."""
     chunks: int = 50
     """Reporting chunks per run: metrics, progress and checkpoints happen between chunks."""
-    checkpoint_every: int = 10
-    """Chunks between checkpoints (the last chunk is always saved)."""
-    eval_episodes: int = 100
-    """Test episodes of the final evaluation (reaching envs)."""
-    precision: bool = True
-    """Reaching envs with a goal threshold (arm7): also report success at 5, 2 and 1 cm."""
     devices: int = 0
     """Devices to spread the lanes over (0: all devices, of every process in a run over several)."""
-    stop_after_steps: int = 0
-    """Stop early, resumably, once this many env steps are done (0: run to the end)."""
-    progress: bool | None = None
-    """Show a progress bar (default: only on a terminal and not under CI)."""
     coordinator: str | None = None
     """HOST:PORT of process 0 in a run over several processes (jax.distributed).
     None: $JAX_COORDINATOR_ADDRESS, else a detected SLURM / Open MPI / Kubernetes launch, else one process."""
@@ -809,15 +811,9 @@ def cli_main(cli: AlgorithmCLI, argv: Sequence[str] | None = None) -> int:
         env=env,
         trainer=trainer,
         config=config,
-        seed=args.seed,
-        out=args.out,
         run_dir=args.resume,
-        checkpoint_every=args.checkpoint_every,
-        eval_episodes=args.eval_episodes,
-        precision=args.precision,
         episode_length=int(config[cli.name]["episode_length"]),
-        stop_after_steps=args.stop_after_steps,
-        progress=args.progress,
+        **settings_of(args),
     )
     try:
         result = run(spec)
