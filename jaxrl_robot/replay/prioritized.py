@@ -17,12 +17,13 @@
 * After learning, :func:`update_priorities` sets ``p_i = |δ_i| + ε`` from the TD errors
   ``δ`` of the sampled transitions; ``ε > 0`` keeps every stored transition reachable.
 
-Trees (``tree=``): on a GPU the default is the two-level :mod:`~jaxrl_robot.replay.block_tree`,
-whose sample is one kernel (plus the data gather and the IS weights) and whose update —
-leaves, max priority and β — is one kernel; elsewhere the ``branching``-ary
-:mod:`~jaxrl_robot.replay.sum_tree` (one reduction per level to sample, one ``[B, b]`` row
-scatter per level to update), which is the faster of the two on a CPU.  Measured side by side:
-``python -m benchmarks.replay_throughput``.
+Trees (``tree=``): the ``branching``-ary :mod:`~jaxrl_robot.replay.sum_tree` (one reduction
+per level to sample, one ``[B, b]`` row scatter per level to update) is the default on every
+backend; the two-level :mod:`~jaxrl_robot.replay.block_tree` (``tree="block"``), whose sample
+and whose update are one Pallas kernel each on a GPU, wins on its own
+(``python -m benchmarks.replay_throughput``) but not inside a trainer: in DDPG's ``fast`` arm
+program on an H100 its kernels made the chunk's XLA compile take 200 s against 20 s and a chunk
+run 4.1 s against 1.1 s (``python -m benchmarks.per_trees``).
 ``add`` writes fresh ring slots, which are distinct, so it skips the search for repeated indices.
 
 Nothing is jitted here; jit the caller and donate the buffer state.
@@ -144,7 +145,7 @@ def make_prioritized_replay(
         10^6, is the default — :mod:`jaxrl_robot.replay.sum_tree` explains the trade-off).
       tree: ``"sum"`` (:mod:`~jaxrl_robot.replay.sum_tree`, ``branching``-ary), ``"block"``
         (:mod:`~jaxrl_robot.replay.block_tree`, two levels, one fused kernel per sample and per
-        update on a GPU) or ``"auto"``: ``"block"`` on a GPU, else ``"sum"``.
+        update on a GPU) or ``"auto"`` (``"sum"``: see the module docstring).
       backend: the block tree's backend (``"auto"``, ``"pallas"``, ``"xla"``, ``"interpret"``).
     Raises:
       ValueError: naming the field and its allowed range.
@@ -165,7 +166,7 @@ def make_prioritized_replay(
             raise ValueError(f"{name}={value!r} is out of range; allowed {allowed}")
     capacity, batch_size = int(capacity), int(batch_size)
     if tree == "auto":
-        tree = "block" if jax.default_backend() == "gpu" else "sum"
+        tree = "sum"
     rule = block_tree.PriorityRule(float(alpha), float(priority_eps), float(beta_increment))
     if tree == "block":
         new_tree = lambda: block_tree.init(capacity)  # noqa: E731

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from envs_mjx.config import ConfigError, check_choice, check_range
 from jaxrl_robot.agents.ddpg.networks import OUTPUTS
 from jaxrl_robot.replay.her import STRATEGIES
+from jaxrl_robot.replay.prioritized import TREES as PER_TREES
 
 __all__ = ["NOISES", "PRETRAINS", "SCHEDULES", "DDPGConfig"]
 
@@ -74,6 +75,10 @@ class DDPGConfig:
     """PER initial importance-sampling exponent β0."""
     beta_increment: float = 0.001
     """PER increment of β per update (up to 1)."""
+    per_tree: str = "auto"
+    """PER: the sum-tree, 'sum' (16-ary, :mod:`jaxrl_robot.replay.sum_tree`), 'block' (two levels,
+    :mod:`jaxrl_robot.replay.block_tree`, Pallas kernels on a GPU) or 'auto' (= 'sum'; see
+    :func:`jaxrl_robot.replay.make_prioritized_replay`)."""
     priority_eps: float = 1e-6
     """PER: ε of the priority ``p = min(|δ|, priority_clip) + ε``; the smallest priority, so it bounds
     the largest importance weight relative to the others (Eq. 3.10 normalises by the largest)."""
@@ -243,6 +248,7 @@ class DDPGConfig:
         if self.her != "none" and self.schedule != "episodes":
             raise ConfigError(f"her={self.her!r} needs whole episodes: use schedule='episodes'")
         check_choice("noise", self.noise, NOISES)
+        check_choice("per_tree", self.per_tree, PER_TREES)
         check_choice("actor_output", self.actor_output, OUTPUTS)
         for name in ("noise_scale", "noise_mean", "noise_reversion"):
             if not getattr(self, name):

@@ -176,7 +176,7 @@ def setup(
     if config.per:
         replay = make_prioritized_replay(
             config.buffer_size, config.batch_size, config.alpha, config.beta0, config.beta_increment,
-            priority_eps=config.priority_eps,
+            priority_eps=config.priority_eps, tree=config.per_tree,
         )
     else:
         replay = make_uniform_replay(config.buffer_size, config.batch_size)
