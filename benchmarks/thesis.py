@@ -32,7 +32,10 @@ instead of 5 cm, ``envs_mjx.arm7.Arm7Precise``), where the methods separate: a r
 ≥ 95 % success within 2 cm and ≥ 90 % within 1 cm; its report and runs carry ``-precise`` in their names.
 
 ``--smoke`` shrinks every row's budget to seconds (checks the plumbing, not the numbers).
-Seeds run one after another (each a command-line run); vmapped seeds for the tracking rows:
+Seeds run one after another in this process (each a command-line run), or with ``--jobs N`` up to
+``N`` seeds of a row at once, each a ``python -m train.<algo>`` process of its own (output in
+``<runs>/<table>/<row>/seed<k>.log``; on a GPU each process gets 1/N of its memory): the compiles,
+which take most of a short row's time, then overlap.  Vmapped seeds for the tracking rows:
 ``benchmarks.ppo_tracking`` / ``benchmarks.ddpg_tracking``.
 """
 
@@ -47,6 +50,7 @@ import io
 import json
 import os
 import shutil
+import subprocess
 import sys
 import time
 from collections.abc import Sequence
@@ -228,6 +232,36 @@ def run_seed(row: Row, seed: int, args: argparse.Namespace) -> dict[str, Any]:
     if code != 0 or run_dir is None or not os.path.exists(os.path.join(run_dir, "eval.json")):
         return {"error": f"exit code {code}", "run_dir": run_dir, "wall_s": wall}
     return {**json.load(open(os.path.join(run_dir, "eval.json"))), "run_dir": run_dir, "process_s": wall}
+
+
+def run_seeds_apart(row: Row, seeds: Sequence[int], args: argparse.Namespace) -> list[dict[str, Any]]:
+    """Run (or continue, or skip) the ``seeds`` of ``row`` at once, each in a process of its own;
+    the same records as :func:`run_seed`, in the order of ``seeds``."""
+    procs, results = {}, {}
+    for seed in seeds:
+        out = os.path.join(args.runs, row.table, row.name, f"seed{seed}")
+        existing = run_dir_of(args.runs, row, seed)
+        if existing and os.path.exists(os.path.join(existing, "eval.json")):
+            results[seed] = {**json.load(open(os.path.join(existing, "eval.json"))), "run_dir": existing,
+                             "skipped": True}  # fmt: skip
+            continue
+        argv = ["--resume", existing] if existing else [*command(row, args.preset, seed, args.smoke), "--out", out]
+        os.makedirs(out, exist_ok=True)
+        env = {**os.environ, "XLA_PYTHON_CLIENT_MEM_FRACTION": f"{0.9 / len(seeds):.3f}"}
+        log = open(out + ".log", "w")
+        procs[seed] = (subprocess.Popen([sys.executable, "-m", f"train.{row.algo}", *argv], stdout=log,
+                                        stderr=subprocess.STDOUT, env=env), log, time.perf_counter())  # fmt: skip
+    for seed, (proc, log, t0) in procs.items():
+        code = proc.wait()
+        log.close()
+        wall = time.perf_counter() - t0
+        run_dir = run_dir_of(args.runs, row, seed)
+        if code != 0 or run_dir is None or not os.path.exists(os.path.join(run_dir, "eval.json")):
+            results[seed] = {"error": f"exit code {code} (log: {log.name})", "run_dir": run_dir, "wall_s": wall}
+        else:
+            ev = json.load(open(os.path.join(run_dir, "eval.json")))
+            results[seed] = {**ev, "run_dir": run_dir, "process_s": wall}
+    return [results[s] for s in seeds]
 
 
 def axis_keys(ev: dict) -> tuple[str, str, str]:
@@ -441,6 +475,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--out", default=RESULTS, help="where the report goes")
     p.add_argument("--smoke", action="store_true", help="tiny budgets: checks the plumbing, not the numbers")
     p.add_argument("--quiet", action="store_true", help="hide the runs' own output")
+    p.add_argument("--jobs", type=int, default=1,
+                   help="seeds of a row run at once, each in its own process (default 1: one after another, "
+                   "in this process)")  # fmt: skip
     p.add_argument("--list", action="store_true", help="print the rows and their commands, run nothing")
     p.add_argument("--commit", default="", help="commit to record (default: git's HEAD)")
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -465,21 +502,27 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             "commit": prov["commit"][:12],
             "date": time.strftime("%Y-%m-%d %H:%M"), "provenance": prov}  # fmt: skip
     stem = os.path.join(args.out, f"thesis-{device_label()}-{args.preset}{suffix}" + ("-smoke" if args.smoke else ""))
-    jobs = [(r, s) for r in rows if r.algo for s in range(args.seeds)]
+    if args.jobs < 1:
+        raise SystemExit(f"error: --jobs {args.jobs} is out of range; allowed >= 1")
+    n = args.jobs
+    seeds = list(range(args.seeds))
+    jobs = [(r, seeds[i : i + n]) for r in rows if r.algo for i in range(0, len(seeds), n)]
     t_start, ran, spent = time.perf_counter(), 0, 0.0
     by_row: dict[str, list[dict]] = {r.id: [] for r in rows}
-    for i, (row, seed) in enumerate(jobs):
+    for i, (row, group) in enumerate(jobs):
         eta = f", ETA {spent / ran * (len(jobs) - i) / 60:.0f} min" if ran else ""
-        console.print(f"[bold][{i + 1}/{len(jobs)}][/bold] {row.id} seed {seed} — {row.label}{eta}")
+        which = f"seed {group[0]}" if len(group) == 1 else f"seeds {group[0]}-{group[-1]}"
+        console.print(f"[bold][{i + 1}/{len(jobs)}][/bold] {row.id} {which} — {row.label}{eta}")
         t0 = time.perf_counter()
-        got = run_seed(row, seed, args)
-        if not got.get("skipped"):
+        got_all = run_seeds_apart(row, group, args) if args.jobs > 1 else [run_seed(row, group[0], args)]
+        if not all(got.get("skipped") for got in got_all):
             ran, spent = ran + 1, spent + time.perf_counter() - t0
-        if "error" in got:
-            console.print(f"  [red]{row.id} seed {seed}: {got['error']}[/red]")
-        by_row[row.id].append(got)
-        if got.get("run_dir") and not args.smoke:
-            provenance.keep_run(got["run_dir"], stem)
+        for seed, got in zip(group, got_all, strict=True):
+            if "error" in got:
+                console.print(f"  [red]{row.id} seed {seed}: {got['error']}[/red]")
+            by_row[row.id].append(got)
+            if got.get("run_dir") and not args.smoke:
+                provenance.keep_run(got["run_dir"], stem)
         if len(by_row[row.id]) == args.seeds and i + 1 < len(jobs):  # a row done: the report so far
             report(collect(rows, by_row, args, meta, t_start), meta, stem)
     results = collect(rows, by_row, args, meta, t_start)

@@ -45,6 +45,16 @@ def test_table_3_1_smoke_report_resume_and_missing_rows(tmp_path, monkeypatch):
     assert os.path.getmtime(os.path.join(dirs["sparse-future2"], "eval.json")) == before
     assert len(glob.glob(os.path.join(runs, "3.1", "sparse-final", "seed0", "*"))) == 1
 
+    # --jobs: a seed run in a process of its own evaluates exactly as the same seed run in this process
+    monkeypatch.setenv("JAX_PLATFORMS", "cpu")
+    apart_runs = str(tmp_path / "apart")
+    apart = thesis.main([*argv[:-4], "--runs", apart_runs, "--out", out, "--rows", "3.1/sparse-future2", "--jobs", "2"])
+    (got,) = apart["rows"][0]["seeds"]
+    assert os.path.exists(os.path.join(apart_runs, "3.1", "sparse-future2", "seed0.log")), got
+    here = json.load(open(os.path.join(dirs["sparse-future2"], "eval.json")))
+    numbers = [k for k in here if k.startswith(("success", "mean_", "closest_")) or k in ("env_steps", "episodes")]
+    assert len(numbers) >= 8 and {k: got[k] for k in numbers} == {k: here[k] for k in numbers}
+
     # a row whose algorithm does not exist is reported as missing, never run
     absent = thesis.Row("3.1", "absent", "an algorithm not built", None, (), 50, "arm", missing="not built")
     monkeypatch.setattr(thesis, "ROWS", (*thesis.ROWS, absent))
