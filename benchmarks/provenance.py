@@ -230,10 +230,13 @@ def write(
     return md
 
 
-def keep_run(run_dir: str, stem: str) -> str | None:
+def keep_run(run_dir: str, stem: str, name: str | None = None) -> str | None:
     """Copy ``run_dir``'s :data:`RUN_FILES` (each under 100 kB) to ``<dir of stem>/runs/<name of
-    stem>/<name of run_dir>/``; returns that folder (None if none was copied)."""
-    dest = os.path.join(os.path.dirname(stem), "runs", os.path.basename(stem), os.path.basename(run_dir.rstrip("/")))
+    stem>/<name>/`` (``name`` default: the name of ``run_dir``, which holds its start time to the second;
+    runs that may start in the same second need names of their own); returns that folder (None if none
+    was copied)."""
+    name = name or os.path.basename(run_dir.rstrip("/"))
+    dest = os.path.join(os.path.dirname(stem), "runs", os.path.basename(stem), name)
     copied = 0
     for name in RUN_FILES:
         src = os.path.join(run_dir, name)

@@ -522,7 +522,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                 console.print(f"  [red]{row.id} seed {seed}: {got['error']}[/red]")
             by_row[row.id].append(got)
             if got.get("run_dir") and not args.smoke:
-                provenance.keep_run(got["run_dir"], stem)
+                provenance.keep_run(got["run_dir"], stem, os.path.relpath(got["run_dir"], args.runs))
         if len(by_row[row.id]) == args.seeds and i + 1 < len(jobs):  # a row done: the report so far
             report(collect(rows, by_row, args, meta, t_start), meta, stem)
     results = collect(rows, by_row, args, meta, t_start)

@@ -89,3 +89,14 @@ def test_keep_run_copies_eval_and_config_only(tmp_path):
     kept = provenance.keep_run(str(run), str(tmp_path / "results" / "cpu-x"))
     assert kept == str(tmp_path / "results" / "runs" / "cpu-x" / "ppo-arm7-1")
     assert sorted(os.listdir(kept)) == ["config.json", "eval.json"]
+
+def test_keep_run_names_keep_runs_of_one_second_apart(tmp_path):
+    """Two seeds started in the same second have run directories of one name; their own names keep both."""
+    kept = []
+    for seed in (0, 1):
+        run = tmp_path / "runs" / f"seed{seed}" / "ddpg-arm7-20261125-093504"
+        run.mkdir(parents=True)
+        (run / "eval.json").write_text(f'{{"seed": {seed}}}')
+        kept.append(provenance.keep_run(str(run), str(tmp_path / "results" / "x"), f"seed{seed}/{run.name}"))
+    assert kept[0] != kept[1]
+    assert [open(os.path.join(k, "eval.json")).read() for k in kept] == ['{"seed": 0}', '{"seed": 1}']
