@@ -100,3 +100,13 @@ def test_keep_run_names_keep_runs_of_one_second_apart(tmp_path):
         kept.append(provenance.keep_run(str(run), str(tmp_path / "results" / "x"), f"seed{seed}/{run.name}"))
     assert kept[0] != kept[1]
     assert [open(os.path.join(k, "eval.json")).read() for k in kept] == ['{"seed": 0}', '{"seed": 1}']
+
+
+def test_every_results_file_has_provenance_and_json():
+    """Every Markdown in benchmarks/results/ (runs/ apart) has its .json beside and a provenance section."""
+    results = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "benchmarks", "results")
+    mds = sorted(f for f in os.listdir(results) if f.endswith(".md"))
+    assert len(mds) >= 20
+    missing = [f for f in mds if not os.path.exists(os.path.join(results, f[:-3] + ".json"))
+               or "## Provenance" not in open(os.path.join(results, f)).read()]  # fmt: skip
+    assert missing == []
