@@ -86,7 +86,8 @@ def preset(args: OffPolicyOptions, env: Any, distributed: bool = False) -> DDPGC
     """The :class:`DDPGConfig` of ``args.preset`` for ``env`` and its reward (the env's default if not given);
     its distributed variant with ``distributed``."""
     reward = args.reward or getattr(getattr(env, "config", None), "reward", None)
-    return ddpg_preset(args.preset, args.env, common.episode_length(env), reward, distributed=distributed)
+    her = getattr(getattr(args, "ddpg", None) or getattr(args, "td3", None), "her", "none")
+    return ddpg_preset(args.preset, args.env, common.episode_length(env), reward, distributed=distributed, her=her)
 
 
 def distributed_flag(argv: list[str]) -> bool:
@@ -122,7 +123,7 @@ def make_trainer(args: OffPolicyOptions, env: Any, cfg: DDPGConfig, mesh: Mesh):
 
 CLI = OffPolicyCLI(
     name="ddpg", args_type=Args, config_type=DDPGConfig, preset=preset, make_trainer=make_trainer,
-    env_settings=env_settings, env_fields=("trajectory",),
+    env_settings=env_settings, env_fields=("trajectory",), preset_fields=("her",),
 )  # fmt: skip
 
 

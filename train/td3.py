@@ -55,7 +55,7 @@ def preset(args: ddpg.OffPolicyOptions, env: Any, distributed: bool = False) -> 
 
 CLI = ddpg.OffPolicyCLI(
     name="td3", args_type=Args, config_type=DDPGConfig, preset=preset, make_trainer=ddpg.make_trainer,
-    env_settings=ddpg.env_settings, env_fields=("trajectory",),
+    env_settings=ddpg.env_settings, env_fields=("trajectory",), preset_fields=("her",),
 )  # fmt: skip
 
 

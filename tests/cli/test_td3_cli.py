@@ -84,3 +84,21 @@ def test_racing_run_resumes_through_the_imitation_stage_and_drives_laps(tmp_path
         assert outcomes == 1
     header = open(os.path.join(run_dir, "metrics.csv")).readline()
     assert "imitation_loss" in header
+
+
+@pytest.mark.parametrize("cli", [ddpg_cli, td3_cli])
+def test_arm7_precise_budget_follows_reward_and_relabelling(cli):
+    """arm7_precise: every reward gets the sparse rows' epochs, random relabelling goals twice that;
+    arm7 keeps the thesis's 200 / 100; --epochs still wins."""
+
+    def epochs(*argv):
+        args = cli.parse(["--preset", "fast", *argv])
+        return getattr(args, cli.CLI.name).epochs
+
+    assert epochs("--env", "arm7", "--reward", "sparse", "--her", "future") == 20
+    assert epochs("--env", "arm7", "--reward", "shaped", "--her", "random") == 10
+    assert epochs("--env", "arm7_precise", "--reward", "shaped", "--her", "future") == 20
+    assert epochs("--env", "arm7_precise", "--reward", "shaped", "--her", "random") == 40
+    assert epochs("--env", "arm7_precise", "--reward", "shaped", "--her", "random", "--epochs", "5") == 5
+    thesis = cli.parse(["--env", "arm7_precise", "--preset", "thesis", "--her", "random"])
+    assert getattr(thesis, cli.CLI.name).epochs == 400  # the env's default reward (path): 200, twice
