@@ -42,31 +42,31 @@ def bench(tree: str, ddpg_argv: list[str], repeats: int) -> dict[str, Any]:
     init_s = time.perf_counter() - t0
     compile_s, times, _ = compile_and_time(trainer.update, state, repeats, donate=True)
     chunk_s = statistics.median(times)
-    return {
-        "tree": tree, "init_s": init_s, "compile_s": compile_s, "chunk_s": chunk_s, "chunk_s_all": times,
-        "env_steps_per_chunk": trainer.env_steps_per_update, "env_steps_per_s": trainer.env_steps_per_update / chunk_s,
-        "ddpg": {k: config["ddpg"][k] for k in ("num_envs", "batch_size", "buffer_size", "updates_per_cycle")
-                 if k in config["ddpg"]},
-    }  # fmt: skip
+    sizes = {k: config["ddpg"][k] for k in ("num_envs", "batch_size", "buffer_size", "updates_per_cycle")}
+    steps = trainer.env_steps_per_update
+    return dict(tree=tree, init_s=init_s, compile_s=compile_s, chunk_s=chunk_s, chunk_s_all=times,
+                env_steps_per_chunk=steps, env_steps_per_s=steps / chunk_s, ddpg=sizes)  # fmt: skip
+
+
+HEADER = """# Prioritised replay's trees inside DDPG — {device}
+
+`python -m train.ddpg {argv} --per --per-tree <tree>`; one chunk is `trainer.update`; median of {repeats}
+chunks after a warm-up chunk, compile apart (init: the jitted `trainer.init` including its compile).
+Lower is better.
+
+| tree | init s | compile s (one chunk) | s per chunk | env steps/s | × sum (chunk time) |
+|---|---:|---:|---:|---:|---:|
+"""
 
 
 def to_markdown(result: dict[str, Any]) -> str:
-    lines = [
-        f"# Prioritised replay's trees inside DDPG — {result['device']}",
-        "",
-        f"`python -m train.ddpg {' '.join(result['ddpg_argv'])} --per --per-tree <tree>`; one chunk is "
-        f"`trainer.update`; median of {result['repeats']} chunks after a warm-up chunk, compile apart "
-        f"(init: the jitted `trainer.init` including its compile). Lower is better.",
-        "",
-        "| tree | init s | compile s (one chunk) | s per chunk | env steps/s | × sum (chunk time) |",
-        "|---|---:|---:|---:|---:|---:|",
-    ]
-    base = next((r for r in result["runs"] if r["tree"] == "sum"), None)
+    text = HEADER.format(device=result["device"], argv=" ".join(result["ddpg_argv"]), repeats=result["repeats"])
+    base = {r["tree"]: r for r in result["runs"]}.get("sum")
     for r in result["runs"]:
         ratio = f"{r['chunk_s'] / base['chunk_s']:.2f}" if base else "—"
-        lines.append(f"| {r['tree']} | {r['init_s']:.1f} | {r['compile_s']:.1f} | {r['chunk_s']:.3f} "
-                     f"| {r['env_steps_per_s']:,.0f} | {ratio} |")  # fmt: skip
-    return "\n".join(lines) + "\n"
+        text += (f"| {r['tree']} | {r['init_s']:.1f} | {r['compile_s']:.1f} | {r['chunk_s']:.3f} "
+                 f"| {r['env_steps_per_s']:,.0f} | {ratio} |\n")  # fmt: skip
+    return text
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
