@@ -203,6 +203,8 @@ def test_config_errors_name_the_field():
         _tiny(reward_shift=float("nan")).validate()
     with pytest.raises(ConfigError, match="her='best' is not valid"):
         _tiny(her="best").validate()
+    with pytest.raises(ConfigError, match="per_tree='heap' is not valid; choose one of 'auto', 'sum', 'block'"):
+        _tiny(per_tree="heap").validate()
     with pytest.raises(ConfigError, match="her='future' needs whole episodes"):
         _tiny(her="future", schedule="steps").validate()
     with pytest.raises(ConfigError, match=r"tau=0 is out of range"):
