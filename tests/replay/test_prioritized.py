@@ -120,3 +120,13 @@ def test_invalid_settings_name_the_field():
     replay = make_prioritized_replay(4, 2)
     with pytest.raises(ValueError, match="cannot add 5 items at once to a buffer of capacity 4"):
         replay.add(replay.init(_item()), _items(0, 5))
+
+
+def test_auto_tree_is_the_sum_tree_on_every_backend():
+    """``tree='auto'`` keeps the sum tree (the block tree's kernels compile and run slower inside a trainer)."""
+    from jaxrl_robot.replay.block_tree import BlockTreeState
+    from jaxrl_robot.replay.sum_tree import SumTreeState
+
+    auto = make_prioritized_replay(capacity=8, batch_size=2).init(_item())
+    block = make_prioritized_replay(capacity=8, batch_size=2, tree="block", backend="xla").init(_item())
+    assert isinstance(auto.tree, SumTreeState) and isinstance(block.tree, BlockTreeState)
