@@ -731,14 +731,17 @@ class AlgorithmCLI:
         if known.resume:
             preset, config = known.preset, self.config_type()
         else:
-            preset = resolve_preset(known.preset)
+            preset = resolve_preset(known.preset, known.env, self.name)
+            if known.preset == "auto" and preset == "brax" and not any(a in ("-h", "--help") for a in argv):
+                print(f"preset: brax (brax's published PPO settings for {known.env}; train/presets.py BRAX_PPO)",
+                      file=sys.stderr)  # fmt: skip
             fields = ("env", "reward", "env_config", *self.env_fields)
             variant = {k: getattr(known, k) for k in self.preset_fields if getattr(known, k) is not None}
             ahead = self.args(self.config_type(**variant), preset=preset, **{k: getattr(known, k) for k in fields})
             config = self.preset(ahead, make_env(known.env, self.env_settings(ahead)))
         default = self.args(config, env=known.env, preset=preset)
         args = tyro.cli(self.args_type, args=argv, default=default, prog=f"python -m train.{self.name}")
-        args = dataclasses.replace(args, preset=resolve_preset(args.preset))
+        args = dataclasses.replace(args, preset=resolve_preset(args.preset, args.env, self.name))
         return self.args_from_saved(args.resume, args) if args.resume else args
 
     def args_from_saved(self, run_dir: str, current: Any) -> Any:

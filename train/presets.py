@@ -11,7 +11,10 @@ PPO presets:
 * ``cpu`` — a few dozen lanes, sized for a 2-core CPU (the default without an accelerator);
   larger learning rates and no batch-norm (more stable here than the thesis's BN actor).
 * ``fast`` — thousands of lanes for one GPU (the default with an accelerator).
-* ``auto`` — ``fast`` on a GPU/TPU backend, else ``cpu``.
+* ``brax`` (PPO only) — brax's published PPO settings for its standard tasks (:data:`BRAX_PPO`,
+  converted by :func:`brax_ppo_config`); ``auto`` picks it for a ``brax:<task>`` env of that table.
+* ``auto`` — ``brax`` for the tasks of :data:`BRAX_PPO` (PPO), else ``fast`` on a GPU/TPU backend,
+  else ``cpu``.
 
 Environment settings (reward, physics mode, …) stay apart from algorithm settings: a preset
 returns a :class:`PPOConfig` and env overrides separately.
@@ -26,7 +29,9 @@ from jaxrl_robot.agents.ddpg import DDPGConfig
 from jaxrl_robot.agents.ppo import PPOConfig
 
 __all__ = [
+    "BRAX_PPO",
     "a2c_preset",
+    "brax_ppo_config",
     "distribute",
     "PPO_PRESETS",
     "ppo_env_overrides",
@@ -38,14 +43,82 @@ __all__ = [
     "tracking_schedule",
 ]
 
-PPO_PRESETS = ("auto", "thesis", "cpu", "fast")
+PPO_PRESETS = ("auto", "thesis", "cpu", "fast", "brax")
+PRESETS = ("auto", "thesis", "cpu", "fast")
+"""The presets of every algorithm; ``brax`` is PPO's alone."""
+
+BRAX_PPO: dict[str, dict[str, float]] = {
+    # brax's training notebook (github.com/google/brax, notebooks/training.ipynb, `train_fn`), in
+    # brax's own terms (brax.training.agents.ppo.train's arguments); add a row for a task of yours.
+    "inverted_pendulum": dict(num_timesteps=2_000_000, num_envs=2048, batch_size=1024, num_minibatches=32,
+                              unroll_length=5, num_updates_per_batch=4, discounting=0.97, entropy_cost=1e-2,
+                              reward_scaling=10, learning_rate=3e-4, episode_length=1000),
+    "inverted_double_pendulum": dict(num_timesteps=20_000_000, num_envs=2048, batch_size=1024, num_minibatches=32,
+                                     unroll_length=5, num_updates_per_batch=4, discounting=0.97, entropy_cost=1e-2,
+                                     reward_scaling=10, learning_rate=3e-4, episode_length=1000),
+    # brax's row also repeats each action 4 times (action_repeat=4), which these trainers do not.
+    "reacher": dict(num_timesteps=50_000_000, num_envs=2048, batch_size=256, num_minibatches=32, unroll_length=50,
+                    num_updates_per_batch=8, discounting=0.95, entropy_cost=1e-3, reward_scaling=5,
+                    learning_rate=3e-4, episode_length=1000),
+    "halfcheetah": dict(num_timesteps=50_000_000, num_envs=2048, batch_size=512, num_minibatches=32,
+                        unroll_length=20, num_updates_per_batch=8, discounting=0.95, entropy_cost=1e-3,
+                        reward_scaling=1, learning_rate=3e-4, episode_length=1000),
+    # The notebook trains hopper with SAC; its PPO row here is the notebook's ant row (the locomotion
+    # setting it uses for PPO) with 4096 envs.
+    "hopper": dict(num_timesteps=50_000_000, num_envs=4096, batch_size=2048, num_minibatches=32, unroll_length=5,
+                   num_updates_per_batch=4, discounting=0.97, entropy_cost=1e-2, reward_scaling=10,
+                   learning_rate=3e-4, episode_length=1000),
+}  # fmt: skip
+"""brax's PPO settings per brax task, in brax's terms (converted by :func:`brax_ppo_config`)."""
 
 
-def resolve_preset(name: str) -> str:
-    """``auto`` → ``fast`` on an accelerator backend, else ``cpu``; other names unchanged (validated)."""
-    if name not in PPO_PRESETS:
-        raise ValueError(f"unknown preset {name!r}; valid presets: {', '.join(PPO_PRESETS)}")
+def brax_ppo_config(task: str, action_size: int) -> PPOConfig:
+    """The :class:`PPOConfig` of ``BRAX_PPO[task]`` (``KeyError`` naming the tasks otherwise).
+
+    brax collects ``batch_size · num_minibatches`` unrolls of ``unroll_length`` steps per training
+    step and makes ``num_updates_per_batch`` passes of ``num_minibatches`` mini-batches over them.
+    Here one iteration is ``num_envs`` lanes × ``unroll_length`` (N) steps, so N = those unrolls per
+    lane × ``unroll_length``; a mini-batch holds ``batch_size · unroll_length`` transitions rounded
+    down to a multiple of the lanes (B / K from every lane); actor and critic each take as many steps
+    as brax's passes cover. The networks are brax's defaults (policy 4 × 32, value 5 × 256, no
+    batch-norm), with a learned state-independent σ starting at softplus(0) ≈ 0.7 (brax's starting
+    scale; brax learns a state-dependent one), clip ε 0.3 and GAE λ 0.95 (brax's defaults),
+    normalised observations and advantages, one Adam learning rate for both.
+    """
+    if task not in BRAX_PPO:
+        raise KeyError(f"no brax PPO settings for {task!r}; known: {', '.join(BRAX_PPO)}")
+    b = BRAX_PPO[task]
+    lanes = int(b["num_envs"])
+    unrolls = max(1, int(b["batch_size"] * b["num_minibatches"]) // lanes)
+    n = unrolls * int(b["unroll_length"])
+    minibatch = max(lanes, (int(b["batch_size"] * b["unroll_length"]) // lanes) * lanes)
+    updates = max(1, round(b["num_updates_per_batch"] * lanes * n / minibatch))
+    return PPOConfig(
+        num_envs=lanes, unroll_length=n, minibatch_size=minibatch, actor_updates=updates, critic_updates=updates,
+        total_steps=int(b["num_timesteps"]), gamma=float(b["discounting"]), gae_lambda=0.95, clip_eps=0.3,
+        entropy_coef=float(b["entropy_cost"]), reward_scale=float(b["reward_scaling"]),
+        actor_lr=float(b["learning_rate"]), critic_lr=float(b["learning_rate"]), sigma=(0.7,) * action_size,
+        learn_std=True, normalize_obs=True, normalize_advantages=True, batch_norm=False,
+        actor_hidden=(32, 32, 32, 32), critic_hidden=(256,) * 5, episode_length=int(b["episode_length"]),
+        reset_refresh=1.0,
+    )  # fmt: skip
+
+
+def brax_task(env_name: str) -> str | None:
+    """The :data:`BRAX_PPO` task of ``env_name`` (``brax:<task>``), or None."""
+    prefix, _, task = env_name.partition(":")
+    return task if prefix == "brax" and task in BRAX_PPO else None
+
+
+def resolve_preset(name: str, env_name: str | None = None, algo: str = "ppo") -> str:
+    """``auto`` → ``brax`` for a PPO run on a task of :data:`BRAX_PPO`, else ``fast`` on an
+    accelerator backend, else ``cpu``; other names unchanged (validated: ``brax`` is PPO's)."""
+    valid = PPO_PRESETS if algo == "ppo" else PRESETS
+    if name not in valid:
+        raise ValueError(f"unknown preset {name!r}; valid presets: {', '.join(valid)}")
     if name == "auto":
+        if algo == "ppo" and env_name is not None and brax_task(env_name):
+            return "brax"
         return "fast" if jax.default_backend() in ("gpu", "cuda", "rocm", "tpu") else "cpu"
     return name
 
@@ -144,9 +217,12 @@ def two_stage_variant(config: PPOConfig, name: str, episode_length: int) -> PPOC
 
 def _ppo_base_preset(name: str, env_name: str, episode_length: int, action_size: int) -> tuple[PPOConfig, dict]:
     """The feed-forward PPO preset (see :func:`ppo_preset`)."""
-    name = resolve_preset(name)
+    name = resolve_preset(name, env_name)
     family = _family(env_name)
     env_overrides = ppo_env_overrides(name, env_name)
+    if name == "brax":
+        config = brax_ppo_config(brax_task(env_name) or "inverted_pendulum", action_size)
+        return config, env_overrides
     if family == "arm":
         # Table 5.2 and §5.4: 2 x 200 nets, batch-norm actor, σ = [0.8, 0.8, 0.1].
         base = PPOConfig(
@@ -244,7 +320,7 @@ def a2c_preset(
     standardise advantages and anneal the learning rates (measurements in the code). Env overrides as
     :func:`ppo_env_overrides` (arm7 in ``kinematic`` mode under ``thesis`` and ``cpu``).
     """
-    name = resolve_preset(name)
+    name = resolve_preset(name, algo="a2c")
     family = _family(env_name)
     env_overrides = ppo_env_overrides(name, env_name)
     cls = A3CConfig if asynchronous else A2CConfig
@@ -335,7 +411,7 @@ def ddpg_preset(
     the learning settings, see the comment below); ``fast`` runs many more lanes per cycle on an
     accelerator with proportionally more updates on larger batches.
     """
-    name = resolve_preset(name)
+    name = resolve_preset(name, algo="ddpg")
     family = _family(env_name)
     if family == "arm":
         sparse = reward == "sparse"

@@ -14,7 +14,8 @@ import pytest
 from jaxrl_robot.checkpoint import Checkpointer
 from jaxrl_robot.types import Trainer
 from tests.subproc import ROOT, cpu_env
-from train import common
+from train import common, presets
+from train import ddpg as ddpg_cli
 from train import ppo as ppo_cli
 
 TINY = [
@@ -110,7 +111,7 @@ def test_bad_input_names_the_valid_choices(capsys):
     assert ppo_cli.main(["--env", "nope"]) == 2
     assert "unknown environment 'nope'; valid names: arm7" in capsys.readouterr().err
     assert ppo_cli.main(["--env", "arm7", "--preset", "huge"]) == 2
-    assert "unknown preset 'huge'; valid presets: auto, thesis, cpu, fast" in capsys.readouterr().err
+    assert "unknown preset 'huge'; valid presets: auto, thesis, cpu, fast, brax" in capsys.readouterr().err
     assert ppo_cli.main(["--env", "arm7", "--clip-eps", "2"]) == 2
     assert "clip_eps=2.0 is out of range; allowed (0, 1)" in capsys.readouterr().err
     assert ppo_cli.main(["--env", "arm7", "--reward", "fast"]) == 2
@@ -198,3 +199,23 @@ def test_resume_before_the_first_checkpoint_starts_that_run_over(tmp_path, capsy
     assert int(state["count"]) == 3 and record["env_steps"] == 300
     rows = common.read_csv(str(run_dir / "metrics.csv"))
     assert [int(float(r["env_steps"])) for r in rows] == [100, 200, 300]  # the killed run's row replaced
+
+
+def test_brax_preset_converts_brax_settings_and_auto_picks_it(capsys):
+    """brax's inverted_pendulum row (2048 envs, batch 1024 × 32 mini-batches of unrolls of 5, 4 passes):
+    80 steps per lane, mini-batches of 4096 (5120 rounded down to the 2048 lanes), 4 · 163840 / 4096 = 160
+    steps of actor and critic; halfcheetah (batch 512, unroll 20, 8 passes): 160 steps, 10240, 256."""
+    ip = ppo_cli.parse(["--env", "brax:inverted_pendulum"])
+    assert ip.preset == "brax" and "preset: brax (brax's published PPO settings" in capsys.readouterr().err
+    c = ip.ppo
+    shape = (c.num_envs, c.unroll_length, c.minibatch_size, c.actor_updates, c.critic_updates)
+    assert shape == (2048, 80, 4096, 160, 160)
+    assert (c.gamma, c.entropy_coef, c.reward_scale, c.clip_eps, c.total_steps) == (0.97, 0.01, 10.0, 0.3, 2_000_000)
+    assert c.normalize_obs and c.learn_std and not c.batch_norm and c.actor_lr == c.critic_lr == 3e-4
+    hc = presets.brax_ppo_config("halfcheetah", 6)
+    assert (hc.unroll_length, hc.minibatch_size, hc.actor_updates, hc.gamma) == (160, 10240, 256, 0.95)
+    # a flag still wins; envs without a row keep the generic presets; other algorithms have no brax preset
+    assert ppo_cli.parse(["--env", "brax:inverted_pendulum", "--gamma", "0.9"]).ppo.gamma == 0.9
+    assert ppo_cli.parse(["--env", "brax:fast"]).preset in ("cpu", "fast")
+    assert ddpg_cli.main(["--env", "arm7", "--preset", "brax"]) == 2
+    assert "unknown preset 'brax'; valid presets: auto, thesis, cpu, fast" in capsys.readouterr().err
