@@ -72,8 +72,9 @@ BRAX_PPO: dict[str, dict[str, float]] = {
 """brax's PPO settings per brax task, in brax's terms (converted by :func:`brax_ppo_config`)."""
 
 
-def brax_ppo_config(task: str, action_size: int) -> PPOConfig:
-    """The :class:`PPOConfig` of ``BRAX_PPO[task]`` (``KeyError`` naming the tasks otherwise).
+def brax_ppo_config(task: str, action_size: int, **row: float) -> PPOConfig:
+    """The :class:`PPOConfig` of ``BRAX_PPO[task]``, its entries updated by ``row`` (``KeyError``
+    naming the tasks for an unknown one).
 
     brax collects ``batch_size · num_minibatches`` unrolls of ``unroll_length`` steps per training
     step and makes ``num_updates_per_batch`` passes of ``num_minibatches`` mini-batches over them.
@@ -87,7 +88,7 @@ def brax_ppo_config(task: str, action_size: int) -> PPOConfig:
     """
     if task not in BRAX_PPO:
         raise KeyError(f"no brax PPO settings for {task!r}; known: {', '.join(BRAX_PPO)}")
-    b = BRAX_PPO[task]
+    b = {**BRAX_PPO[task], **row}
     lanes = int(b["num_envs"])
     unrolls = max(1, int(b["batch_size"] * b["num_minibatches"]) // lanes)
     n = unrolls * int(b["unroll_length"])

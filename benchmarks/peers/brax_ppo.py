@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["install_shim", "run_brax_ppo"]
+__all__ = ["install_shim", "run_brax_ppo", "train_published"]
 
 
 def install_shim() -> bool:
@@ -96,3 +96,42 @@ def run_brax_ppo(
         "total_s": total,
         "shim_installed": shimmed,
     }
+
+
+def train_published(env: Any, row: dict[str, float], num_timesteps: int, seed: int = 0) -> dict[str, Any]:
+    """brax's ``ppo.train`` with a task's published settings (``row``: brax's own argument names, a row of
+    ``train.presets.BRAX_PPO``) for ``num_timesteps`` env steps; brax's default networks.
+
+    Returns ``final_return`` (brax's last ``eval/episode_reward``: deterministic policy, 128 episodes),
+    ``curve_steps`` / ``curve`` (every evaluation), ``wall_s`` (the whole call, compilation included)
+    and ``env_steps`` (brax's count at its last evaluation).
+    """
+    from brax.training.agents.ppo import train as ppo
+
+    install_shim()
+    evals: list[tuple[int, float]] = []
+
+    def progress(step: int, metrics: dict) -> None:
+        if "eval/episode_reward" in metrics:
+            evals.append((int(step), float(metrics["eval/episode_reward"])))
+
+    names = ("num_envs", "batch_size", "num_minibatches", "unroll_length", "num_updates_per_batch", "episode_length")
+    t0 = time.perf_counter()
+    ppo.train(
+        environment=env,
+        num_timesteps=int(num_timesteps),
+        num_evals=10,
+        normalize_observations=True,
+        action_repeat=1,
+        discounting=float(row["discounting"]),
+        entropy_cost=float(row["entropy_cost"]),
+        reward_scaling=float(row["reward_scaling"]),
+        learning_rate=float(row["learning_rate"]),
+        max_devices_per_host=1,
+        seed=seed,
+        progress_fn=progress,
+        **{k: int(row[k]) for k in names},
+    )
+    wall = time.perf_counter() - t0
+    return {"final_return": evals[-1][1], "curve_steps": [s for s, _ in evals], "curve": [r for _, r in evals],
+            "wall_s": wall, "env_steps": evals[-1][0]}  # fmt: skip

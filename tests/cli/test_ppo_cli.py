@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from benchmarks import brax_tasks
 from jaxrl_robot.checkpoint import Checkpointer
 from jaxrl_robot.types import Trainer
 from tests.subproc import ROOT, cpu_env
@@ -214,6 +215,9 @@ def test_brax_preset_converts_brax_settings_and_auto_picks_it(capsys):
     assert c.normalize_obs and c.learn_std and not c.batch_norm and c.actor_lr == c.critic_lr == 3e-4
     hc = presets.brax_ppo_config("halfcheetah", 6)
     assert (hc.unroll_length, hc.minibatch_size, hc.actor_updates, hc.gamma) == (160, 10240, 256, 0.95)
+    # benchmarks.brax_tasks --num-envs 64: the batch scales with the envs, the per-lane structure stays
+    small = presets.brax_ppo_config("inverted_pendulum", 1, **brax_tasks.brax_row("inverted_pendulum", 64))
+    assert (small.num_envs, small.unroll_length, small.minibatch_size, small.actor_updates) == (64, 80, 128, 160)
     # a flag still wins; envs without a row keep the generic presets; other algorithms have no brax preset
     assert ppo_cli.parse(["--env", "brax:inverted_pendulum", "--gamma", "0.9"]).ppo.gamma == 0.9
     assert ppo_cli.parse(["--env", "brax:fast"]).preset in ("cpu", "fast")
