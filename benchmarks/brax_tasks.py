@@ -14,7 +14,9 @@ program called per seed (``--seed-map vmap``: one vmapped program), brax's one a
   episodes of ``episode_length`` steps); ours: the deterministic policy on ``--eval-episodes`` fresh
   episodes of the same length (:func:`jaxrl_robot.evaluation.run_test_episodes`). Mean ± std over seeds.
 * **wall**: from the call to the trained parameters, compilation included (per seed: the seeds' total
-  over their number); **env steps/s**: env steps of all seeds over that wall time.
+  over their number); brax's includes the 10 evaluations its ``ppo.train`` runs along the way
+  (128 episodes each), ours has no evaluation inside training; **env steps/s**: env steps of all
+  seeds over that wall time.
 
 Goals (issue 15): per task our return ≥ brax's and our wall per seed ≤ brax's. Results:
 ``benchmarks/results/<device>-brax_tasks.json`` and ``.md`` with one learning-curve figure per task.
@@ -148,11 +150,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     args = p.parse_args(argv)
     from brax import envs as brax_envs
 
+    brax_seeds = args.brax_seeds or args.seeds
     prov = provenance.record("benchmarks.brax_tasks", argv, seeds=f"ours: split(PRNGKey(0), {args.seeds}); brax: "
-                             f"seed 0..{args.seeds - 1}", commit=args.commit)  # fmt: skip
+                             f"seed 0..{brax_seeds - 1}", commit=args.commit)  # fmt: skip
     stem = f"{args.out}/{device_label()}-brax_tasks"
     result = {"benchmark": "brax_tasks", "provenance": prov, "device": device_label(), "backend": args.backend,
-              "seeds": args.seeds, "seed_map": args.seed_map, "brax_seeds": args.brax_seeds or args.seeds,
+              "seeds": args.seeds, "seed_map": args.seed_map, "brax_seeds": brax_seeds,
               "eval_episodes": args.eval_episodes,
               "figures": stem + "-figures", "tasks": []}  # fmt: skip
     os.makedirs(result["figures"], exist_ok=True)
@@ -164,7 +167,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                "ours": ours(env, task, settings, steps, args.seeds, args.eval_episodes, args.seed_map)}
         print(task, "ours", [round(r, 1) for r in row["ours"]["returns"]], f"{row['ours']['wall_s']:.0f} s", flush=True)
         if not args.no_brax:
-            row["brax"] = theirs(env, settings, steps, args.brax_seeds or args.seeds)
+            row["brax"] = theirs(env, settings, steps, brax_seeds)
             print(task, "brax", [round(r, 1) for r in row["brax"]["returns"]], f"{row['brax']['wall_s']:.0f} s",
                   flush=True)  # fmt: skip
         else:
