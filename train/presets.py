@@ -29,6 +29,7 @@ from jaxrl_robot.agents.ddpg import DDPGConfig
 from jaxrl_robot.agents.ppo import PPOConfig
 
 __all__ = [
+    "BRAX_COLUMNS",
     "BRAX_PPO",
     "a2c_preset",
     "brax_ppo_config",
@@ -47,27 +48,24 @@ PPO_PRESETS = ("auto", "thesis", "cpu", "fast", "brax")
 PRESETS = ("auto", "thesis", "cpu", "fast")
 """The presets of every algorithm; ``brax`` is PPO's alone."""
 
+BRAX_COLUMNS = ("num_timesteps", "num_envs", "batch_size", "num_minibatches", "unroll_length",
+                "num_updates_per_batch", "discounting", "entropy_cost", "reward_scaling", "learning_rate",
+                "episode_length")  # fmt: skip
+"""The columns of :data:`BRAX_PPO`: the arguments of brax's ``ppo.train`` they are."""
+
+# brax's training notebook (github.com/google/brax, notebooks/training.ipynb, `train_fn`). reacher's row
+# there also repeats each action 4 times (action_repeat=4), which these trainers do not; the notebook
+# trains hopper with SAC, so its PPO row here is the notebook's ant row (its locomotion PPO setting).
 BRAX_PPO: dict[str, dict[str, float]] = {
-    # brax's training notebook (github.com/google/brax, notebooks/training.ipynb, `train_fn`), in
-    # brax's own terms (brax.training.agents.ppo.train's arguments); add a row for a task of yours.
-    "inverted_pendulum": dict(num_timesteps=2_000_000, num_envs=2048, batch_size=1024, num_minibatches=32,
-                              unroll_length=5, num_updates_per_batch=4, discounting=0.97, entropy_cost=1e-2,
-                              reward_scaling=10, learning_rate=3e-4, episode_length=1000),
-    "inverted_double_pendulum": dict(num_timesteps=20_000_000, num_envs=2048, batch_size=1024, num_minibatches=32,
-                                     unroll_length=5, num_updates_per_batch=4, discounting=0.97, entropy_cost=1e-2,
-                                     reward_scaling=10, learning_rate=3e-4, episode_length=1000),
-    # brax's row also repeats each action 4 times (action_repeat=4), which these trainers do not.
-    "reacher": dict(num_timesteps=50_000_000, num_envs=2048, batch_size=256, num_minibatches=32, unroll_length=50,
-                    num_updates_per_batch=8, discounting=0.95, entropy_cost=1e-3, reward_scaling=5,
-                    learning_rate=3e-4, episode_length=1000),
-    "halfcheetah": dict(num_timesteps=50_000_000, num_envs=2048, batch_size=512, num_minibatches=32,
-                        unroll_length=20, num_updates_per_batch=8, discounting=0.95, entropy_cost=1e-3,
-                        reward_scaling=1, learning_rate=3e-4, episode_length=1000),
-    # The notebook trains hopper with SAC; its PPO row here is the notebook's ant row (the locomotion
-    # setting it uses for PPO) with 4096 envs.
-    "hopper": dict(num_timesteps=50_000_000, num_envs=4096, batch_size=2048, num_minibatches=32, unroll_length=5,
-                   num_updates_per_batch=4, discounting=0.97, entropy_cost=1e-2, reward_scaling=10,
-                   learning_rate=3e-4, episode_length=1000),
+    task: dict(zip(BRAX_COLUMNS, row, strict=True))
+    for task, row in {
+        #                            steps  envs  batch mb unroll passes  γ     entropy reward lr    T
+        "inverted_pendulum":        (2e6,   2048, 1024, 32, 5,  4,  0.97, 1e-2, 10, 3e-4, 1000),
+        "inverted_double_pendulum": (20e6,  2048, 1024, 32, 5,  4,  0.97, 1e-2, 10, 3e-4, 1000),
+        "reacher":                  (50e6,  2048, 256,  32, 50, 8,  0.95, 1e-3, 5,  3e-4, 1000),
+        "halfcheetah":              (50e6,  2048, 512,  32, 20, 8,  0.95, 1e-3, 1,  3e-4, 1000),
+        "hopper":                   (50e6,  4096, 2048, 32, 5,  4,  0.97, 1e-2, 10, 3e-4, 1000),
+    }.items()
 }  # fmt: skip
 """brax's PPO settings per brax task, in brax's terms (converted by :func:`brax_ppo_config`)."""
 
