@@ -22,8 +22,9 @@ per level to sample, one ``[B, b]`` row scatter per level to update) is the defa
 backend; the two-level :mod:`~jaxrl_robot.replay.block_tree` (``tree="block"``), whose sample
 and whose update are one Pallas kernel each on a GPU, wins on its own
 (``python -m benchmarks.replay_throughput``) but not inside a trainer: in DDPG's ``fast`` arm
-program on an H100 its kernels made the chunk's XLA compile take 200 s against 20 s and a chunk
-run 4.1 s against 1.1 s (``python -m benchmarks.per_trees``).
+program on an H100 its kernels made the chunk's XLA compile take 173 s against 12 s and a chunk
+run 5.3 s against 1.1 s (``python -m benchmarks.per_trees``,
+``benchmarks/results/gpu-nvidia_h100_80gb_hbm3-per_trees.md``).
 ``add`` writes fresh ring slots, which are distinct, so it skips the search for repeated indices.
 
 Nothing is jitted here; jit the caller and donate the buffer state.
