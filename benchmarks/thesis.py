@@ -212,14 +212,32 @@ def run_dir_of(runs: str, row: Row, seed: int) -> str | None:
     return os.path.dirname(found[-1]) if found else None
 
 
-def run_seed(row: Row, seed: int, args: argparse.Namespace) -> dict[str, Any]:
-    """Run (or continue, or skip) one seed of ``row``; its evaluation and wall time."""
-    main = importlib.import_module(f"train.{row.algo}").main
+def seed_start(row: Row, seed: int, args: argparse.Namespace) -> tuple[dict[str, Any] | None, list[str], str]:
+    """How one seed of ``row`` starts: ``(record, argv, out)`` — the record of a finished seed (skipped)
+    or None, the command line that starts it (or continues a killed run) and its parent folder."""
     out = os.path.join(args.runs, row.table, row.name, f"seed{seed}")
     existing = run_dir_of(args.runs, row, seed)
     if existing and os.path.exists(os.path.join(existing, "eval.json")):
-        return {**json.load(open(os.path.join(existing, "eval.json"))), "run_dir": existing, "skipped": True}
+        done = {**json.load(open(os.path.join(existing, "eval.json"))), "run_dir": existing, "skipped": True}
+        return done, [], out
     argv = ["--resume", existing] if existing else [*command(row, args.preset, seed, args.smoke), "--out", out]
+    return None, argv, out
+
+
+def seed_result(row: Row, seed: int, args: argparse.Namespace, code: Any, wall: float, where: str = "") -> dict:
+    """The record of a seed's run that ended with exit ``code``: its evaluation, or the error."""
+    run_dir = run_dir_of(args.runs, row, seed)
+    if code != 0 or run_dir is None or not os.path.exists(os.path.join(run_dir, "eval.json")):
+        return {"error": f"exit code {code}{where}", "run_dir": run_dir, "wall_s": wall}
+    return {**json.load(open(os.path.join(run_dir, "eval.json"))), "run_dir": run_dir, "process_s": wall}
+
+
+def run_seed(row: Row, seed: int, args: argparse.Namespace) -> dict[str, Any]:
+    """Run (or continue, or skip) one seed of ``row`` in this process; its evaluation and wall time."""
+    done, argv, _ = seed_start(row, seed, args)
+    if done is not None:
+        return done
+    main = importlib.import_module(f"train.{row.algo}").main
     t0 = time.perf_counter()
     sink = io.StringIO()
     with contextlib.redirect_stdout(sink) if args.quiet else contextlib.nullcontext():
@@ -227,11 +245,7 @@ def run_seed(row: Row, seed: int, args: argparse.Namespace) -> dict[str, Any]:
             code = main(argv)
         except SystemExit as e:  # a command line that does not parse
             code = e.code
-    wall = time.perf_counter() - t0
-    run_dir = run_dir_of(args.runs, row, seed)
-    if code != 0 or run_dir is None or not os.path.exists(os.path.join(run_dir, "eval.json")):
-        return {"error": f"exit code {code}", "run_dir": run_dir, "wall_s": wall}
-    return {**json.load(open(os.path.join(run_dir, "eval.json"))), "run_dir": run_dir, "process_s": wall}
+    return seed_result(row, seed, args, code, time.perf_counter() - t0)
 
 
 def run_seeds_apart(row: Row, seeds: Sequence[int], args: argparse.Namespace) -> list[dict[str, Any]]:
@@ -239,13 +253,10 @@ def run_seeds_apart(row: Row, seeds: Sequence[int], args: argparse.Namespace) ->
     the same records as :func:`run_seed`, in the order of ``seeds``."""
     procs, results = {}, {}
     for seed in seeds:
-        out = os.path.join(args.runs, row.table, row.name, f"seed{seed}")
-        existing = run_dir_of(args.runs, row, seed)
-        if existing and os.path.exists(os.path.join(existing, "eval.json")):
-            results[seed] = {**json.load(open(os.path.join(existing, "eval.json"))), "run_dir": existing,
-                             "skipped": True}  # fmt: skip
+        done, argv, out = seed_start(row, seed, args)
+        if done is not None:
+            results[seed] = done
             continue
-        argv = ["--resume", existing] if existing else [*command(row, args.preset, seed, args.smoke), "--out", out]
         os.makedirs(out, exist_ok=True)
         env = {**os.environ, "XLA_PYTHON_CLIENT_MEM_FRACTION": f"{0.9 / len(seeds):.3f}"}
         log = open(out + ".log", "w")
@@ -254,13 +265,7 @@ def run_seeds_apart(row: Row, seeds: Sequence[int], args: argparse.Namespace) ->
     for seed, (proc, log, t0) in procs.items():
         code = proc.wait()
         log.close()
-        wall = time.perf_counter() - t0
-        run_dir = run_dir_of(args.runs, row, seed)
-        if code != 0 or run_dir is None or not os.path.exists(os.path.join(run_dir, "eval.json")):
-            results[seed] = {"error": f"exit code {code} (log: {log.name})", "run_dir": run_dir, "wall_s": wall}
-        else:
-            ev = json.load(open(os.path.join(run_dir, "eval.json")))
-            results[seed] = {**ev, "run_dir": run_dir, "process_s": wall}
+        results[seed] = seed_result(row, seed, args, code, time.perf_counter() - t0, f" (log: {log.name})")
     return [results[s] for s in seeds]
 
 
@@ -504,9 +509,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     stem = os.path.join(args.out, f"thesis-{device_label()}-{args.preset}{suffix}" + ("-smoke" if args.smoke else ""))
     if args.jobs < 1:
         raise SystemExit(f"error: --jobs {args.jobs} is out of range; allowed >= 1")
-    n = args.jobs
     seeds = list(range(args.seeds))
-    jobs = [(r, seeds[i : i + n]) for r in rows if r.algo for i in range(0, len(seeds), n)]
+    jobs = [(r, seeds[i : i + args.jobs]) for r in rows if r.algo for i in range(0, len(seeds), args.jobs)]
     t_start, ran, spent = time.perf_counter(), 0, 0.0
     by_row: dict[str, list[dict]] = {r.id: [] for r in rows}
     for i, (row, group) in enumerate(jobs):
