@@ -125,6 +125,7 @@ __all__ = [
 ]
 
 PEDAL_MAPS = ("clip", "affine")
+ROAD_CHOICES = (*racetrack.ROADS, "random")
 PENALTY_MODES = ("replace", "add")
 DISTANCE_SCALES = ("linear", "log")
 GRAVITY = 9.81
@@ -149,7 +150,14 @@ class RaceCarConfig:
     """Settings of ``racecar``; SI units (m, s, kg, N, W, rad unless said)."""
 
     road: str = "train"
-    """'train' (12 m) or the unseen 'test1' (10 m), 'test2', 'test3' (12 m); :mod:`envs_mjx.racetrack`."""
+    """'train' (12 m) or the unseen 'test1' (10 m), 'test2', 'test3' (12 m); :mod:`envs_mjx.racetrack`.
+    'random': every episode drives a road drawn from a bank of ``road_bank`` roads — 'train' and
+    ``road_bank − 1`` roads of the generated family :func:`envs_mjx.racetrack.random_road_spec`
+    (never the test roads), so that a policy learns driving rather than one road."""
+    road_bank: int = 64
+    """Roads of the bank that ``road='random'`` draws from ('train' included)."""
+    road_seed: int = 0
+    """Which generated family ``road='random'`` takes its roads from."""
     track_points: int = 1024
     """Samples of the road's centre line (about 2 m apart); roads with equal counts share compiled code."""
     dt: float = 0.1
@@ -253,7 +261,9 @@ class RaceCarConfig:
     """End the episode at a collision (the thesis's training only penalises it)."""
 
     def validate(self) -> None:
-        check_choice("road", self.road, tuple(racetrack.ROADS))
+        check_choice("road", self.road, ROAD_CHOICES)
+        _check_int("road_bank", self.road_bank, 1, 4096)
+        _check_int("road_seed", self.road_seed, 0)
         _check_int("track_points", self.track_points, 64, 1 << 16)
         check_range("dt", self.dt, 0.0, 1.0, lo_open=True)
         for name in ("n_substeps", "max_steps", "laps"):
@@ -337,7 +347,8 @@ class RaceState:
     line, unwrapped), ``opp_offset [N]`` (m, left positive), ``opp_speed [N]``, ``opp_factor [N]``,
     ``opp_top [N]`` and ``opp_ahead [N]`` (1 where ahead of us after the last step).  Counters:
     ``damage``, ``collisions`` (steps with a collision), ``out_count``, ``slow_count``,
-    ``overtakes``, ``overtaken``, ``time`` (s).
+    ``overtakes``, ``overtaken``, ``time`` (s).  ``road []`` (int32): the index of the road driven
+    in the env's bank (``road='random'``), 0 otherwise.
     """
 
     pos: jax.Array
@@ -363,6 +374,7 @@ class RaceState:
     overtakes: jax.Array
     overtaken: jax.Array
     time: jax.Array
+    road: jax.Array
 
 
 def race_reward(
@@ -430,33 +442,66 @@ class RaceCar(RobotEnv):
     def __init__(self, config: RaceCarConfig | None = None, **overrides: Any):
         super().__init__(config, **overrides)
         cfg = self.config
-        self.track = racetrack.make_road(cfg.road, cfg.track_points)
-        a_lat, a_brake = (f * cfg.mu * GRAVITY for f in cfg.profile_grip)
-        # the profile is for the tightest line a car may take: the axis curvature at the inner edge
-        kappa = np.abs(np.asarray(self.track.curvature, np.float64))
-        inner = kappa / np.maximum(1.0 - kappa * (float(self.track.half_width) - 1.0), 0.3)
-        self.speed_profile = jnp.asarray(
-            racetrack.speed_profile(self.track.replace(curvature=jnp.asarray(inner)), a_lat, a_brake, 80.0)
-        )
+        if cfg.road == "random":
+            specs = [racetrack.random_road_spec(i, cfg.road_seed) for i in range(1, cfg.road_bank)]
+            tracks = [racetrack.make_road("train", cfg.track_points)]
+            tracks += [racetrack.make_spec_road(spec, cfg.track_points) for spec in specs]
+        else:
+            tracks = [racetrack.make_road(cfg.road, cfg.track_points)]
+        roads = [Road(track=t, profile=self._speed_profile(t)) for t in tracks]
+        self.track, self.speed_profile = roads[0].track, roads[0].profile
+        self.bank: Road | None = jax.tree.map(lambda *x: jnp.stack(x), *roads) if len(roads) > 1 else None
         self._angles = jnp.deg2rad(jnp.asarray(cfg.rangefinder_angles, jnp.float32))
         # 15 % slack: the window (in samples) also serves roads of this sample count sampled more densely
-        self._ray_window = racetrack.ray_window(self.track, 45.0, 1.15 * (cfg.max_range + 60.0))
+        windows = [racetrack.ray_window(t, 45.0, 1.15 * (cfg.max_range + 60.0)) for t in tracks]
+        self._ray_window = (max(w[0] for w in windows), max(w[1] for w in windows))
+        if sum(self._ray_window) >= cfg.track_points:
+            self._ray_window = (0, cfg.track_points)
+
+    def _speed_profile(self, track: racetrack.Track) -> jax.Array:
+        """Speed profile ``[M]`` of ``track`` (m/s): for the tightest line a car may take, the axis
+        curvature at the inner edge, with the lateral and braking accelerations of ``profile_grip``."""
+        cfg = self.config
+        a_lat, a_brake = (f * cfg.mu * GRAVITY for f in cfg.profile_grip)
+        kappa = np.abs(np.asarray(track.curvature, np.float64))
+        inner = kappa / np.maximum(1.0 - kappa * (float(track.half_width) - 1.0), 0.3)
+        return jnp.asarray(racetrack.speed_profile(track.replace(curvature=jnp.asarray(inner)), a_lat, a_brake, 80.0))
 
     # ------------------------------------------------------------------ roads
     @property
     def road(self) -> Road:
-        """This env's road: the track and its speed profile (a pytree)."""
+        """This env's road: the track and its speed profile (a pytree); with ``road='random'`` the bank's
+        first road ('train')."""
         return Road(track=self.track, profile=self.speed_profile)
 
+    @property
+    def n_roads(self) -> int:
+        """Roads an episode may drive: ``road_bank`` with ``road='random'``, else 1."""
+        return 1 if self.bank is None else int(self.bank.profile.shape[0])
+
+    def bank_road(self, index: jax.Array | int) -> Road:
+        """Road ``index`` of the bank (``index`` may be traced); the env's road without a bank."""
+        if self.bank is None:
+            return self.road
+        return jax.tree.map(lambda x: x[index], self.bank)
+
     def on_road(self, road: Road) -> RaceCar:
-        """This env driving on ``road`` (same sample count; its arrays may be traced).
+        """This env driving on ``road`` alone (same sample count; its arrays may be traced).
 
         One compiled function then serves every road, and roads stacked along a leading axis can
         be vmapped: ``jax.vmap(lambda r, k: run(env.on_road(r), k))(stacked_roads, keys)``.
         """
         env = copy.copy(self)
-        env.track, env.speed_profile = road.track, road.profile
+        env.track, env.speed_profile, env.bank = road.track, road.profile, None
         return env
+
+    def driving(self, state: State | RaceState) -> RaceCar:
+        """The single-road env of the road that ``state`` (or its ``RaceState``) drives; ``self``
+        without a bank.  Its sensors, observation and expert read that road."""
+        if self.bank is None:
+            return self
+        rs = state.pipeline_state if isinstance(state, State) else state
+        return self.on_road(self.bank_road(rs.road))
 
     # ----------------------------------------------------------------- sizes
     @property
@@ -507,9 +552,9 @@ class RaceCar(RobotEnv):
         return 1.0 + jnp.sum((rs.opp_progress > rs.progress).astype(jnp.float32))
 
     def expert(self, state: State) -> jax.Array:
-        """The scripted driver's action ``[3]`` for ``state`` (:func:`expert_action`): the teacher of the
-        imitation stage (thesis §6.1.2; ``jaxrl_robot.imitation.expert_of``)."""
-        return expert_action(self, state)
+        """The scripted driver's action ``[3]`` for ``state`` (:func:`expert_action`) on the road it
+        drives: the teacher of the imitation stage (thesis §6.1.2; ``jaxrl_robot.imitation.expert_of``)."""
+        return expert_action(self.driving(state), state)
 
     # --------------------------------------------------------------- sensors
     def sensors(self, rs: RaceState) -> dict[str, jax.Array]:
@@ -675,7 +720,15 @@ class RaceCar(RobotEnv):
         return {}
 
     def reset(self, rng: jax.Array, params: Mapping[str, jax.Array] | None = None) -> State:
-        """Our car at rest (``start_speed``) on the axis, the opponents on their lines ahead of it."""
+        """Our car at rest (``start_speed``) on the axis, the opponents on their lines ahead of it;
+        with a bank (``road='random'``) on a road drawn uniformly from it."""
+        if self.bank is None:
+            return self._reset_on_road(rng, params, jnp.zeros((), jnp.int32))
+        k_road, rng = jax.random.split(rng)
+        index = jax.random.randint(k_road, (), 0, self.n_roads, dtype=jnp.int32)
+        return self.on_road(self.bank_road(index))._reset_on_road(rng, params, index)
+
+    def _reset_on_road(self, rng: jax.Array, params: Mapping[str, jax.Array] | None, road: jax.Array) -> State:
         cfg = self.config
         n = cfg.n_opponents
         k_start, k_gap, k_lane, k_factor, k_top = jax.random.split(rng, 5)
@@ -712,6 +765,7 @@ class RaceCar(RobotEnv):
             opp_top=top,
             opp_ahead=jnp.ones((n,), jnp.float32),
             **dict.fromkeys(COUNTERS, zero),
+            road=road,
         )
         metrics = {name: zero for name in METRIC_NAMES}
         metrics.update(rank=self.rank(rs))
@@ -725,7 +779,9 @@ class RaceCar(RobotEnv):
         )
 
     def step(self, state: State, action: jax.Array) -> State:
-        """One control step of ``dt`` with ``action [3]`` in [−1, 1] (unbatched)."""
+        """One control step of ``dt`` with ``action [3]`` in [−1, 1] (unbatched), on the state's road."""
+        if self.bank is not None:
+            return self.driving(state).step(state, action)
         cfg = self.config
         a, invalid = sanitize_action(action)
         controls = self.controls(a)

@@ -66,10 +66,13 @@ __all__ = [
     "from_polyline",
     "locate",
     "make_road",
+    "make_spec_road",
     "point_at",
     "project",
+    "random_road_spec",
     "range_finders",
     "road_control_points",
+    "spec_control_points",
     "speed_profile",
     "stadium",
     "wrap_angle",
@@ -240,10 +243,14 @@ def _clearance(points: np.ndarray, spacing: float, width: float) -> float:
     return float(dist[far].min()) if far.any() else math.inf
 
 
-@functools.cache
 def road_control_points(name: str) -> tuple[np.ndarray, int]:
     """``(control points [n_points, 2], attempt)`` of road ``name`` (module docstring)."""
-    spec = ROADS[name]
+    return spec_control_points(ROADS[name])
+
+
+@functools.cache
+def spec_control_points(spec: RoadSpec) -> tuple[np.ndarray, int]:
+    """``(control points [n_points, 2], attempt)`` of the road generated from ``spec`` (module docstring)."""
     for attempt in range(_MAX_ATTEMPTS):
         rng = np.random.default_rng([spec.seed, attempt])
         u_phi = 0.3 * rng.uniform(-1.0, 1.0, spec.n_points)
@@ -259,7 +266,7 @@ def road_control_points(name: str) -> tuple[np.ndarray, int]:
         spacing = np.linalg.norm(np.diff(dense, axis=0), axis=1).mean()
         if _clearance(dense[::2], 2 * spacing, spec.width) >= 2 * spec.width + 20:
             return pts, attempt
-    raise RuntimeError(f"no road found for {name!r} in {_MAX_ATTEMPTS} attempts")
+    raise RuntimeError(f"no road found for {spec!r} in {_MAX_ATTEMPTS} attempts")
 
 
 @functools.cache
@@ -267,8 +274,41 @@ def make_road(name: str, n_samples: int = 1024) -> Track:
     """The road ``name`` (one of :data:`ROADS`) sampled at ``n_samples`` points (about 2 m apart)."""
     if name not in ROADS:
         raise ValueError(f"unknown road {name!r}; valid roads: {', '.join(ROADS)}")
-    pts, _ = road_control_points(name)
-    return from_control_points(pts, ROADS[name].width, n_samples)
+    return make_spec_road(ROADS[name], n_samples)
+
+
+@functools.cache
+def make_spec_road(spec: RoadSpec, n_samples: int = 1024) -> Track:
+    """The road generated from ``spec`` sampled at ``n_samples`` points."""
+    pts, _ = spec_control_points(spec)
+    return from_control_points(pts, spec.width, n_samples)
+
+
+RANDOM_ROAD_SEED = 1_000_000
+"""Seeds of the generated training roads start here, far from the named roads' seeds 1–4."""
+
+
+def random_road_spec(index: int, family_seed: int = 0) -> RoadSpec:
+    """Road ``index`` of the generated family of training roads number ``family_seed``.
+
+    Drawn by PCG64 from ``(RANDOM_ROAD_SEED, family_seed, index)``: width 10 or 12 m, 8–20
+    control points, radial jitter 0.15–0.45 about 300 m; accepted (as every road, module
+    docstring) when its smallest radius of curvature lies in 15–60 m and it keeps its clearance.
+    This spans the character of all four named roads — the training road's sweeping bends and
+    the test roads' narrow, hairpin and S-bend layouts — while every road is a different curve
+    (the generator's seed is ``RANDOM_ROAD_SEED + 1000 · family_seed + index``, never 1–4).
+    """
+    if index < 0 or family_seed < 0:
+        raise ValueError(f"index={index} and family_seed={family_seed} must be >= 0")
+    rng = np.random.default_rng([RANDOM_ROAD_SEED, family_seed, index])
+    return RoadSpec(
+        width=float(rng.choice([10.0, 12.0])),
+        n_points=int(rng.integers(8, 21)),
+        radius=300.0,
+        jitter=float(rng.uniform(0.15, 0.45)),
+        radius_range=(15.0, 60.0),
+        seed=RANDOM_ROAD_SEED + 1000 * family_seed + index,
+    )
 
 
 def speed_profile(track: Track, a_lat: float, a_brake: float, v_max: float) -> np.ndarray:

@@ -63,6 +63,38 @@ def test_roads_as_documented():
         RaceCar(road="test4")
 
 
+def test_random_roads_are_a_bank_of_distinct_generated_roads_and_step_as_each_road_alone():
+    """``road='random'``: the bank is 'train' and generated roads (widths 10 / 12 m, smallest radius 15–60 m,
+    one anticlockwise loop) none of which is a test road; reset draws roads uniformly; a step and the
+    expert on a bank road equal those of the single-road env of that road (two code paths)."""
+    bank = RaceCar(road="random", road_bank=6)
+    assert bank.n_roads == 6
+    first = bank.bank_road(0).track
+    np.testing.assert_array_equal(np.asarray(first.centre), np.asarray(racetrack.make_road("train").centre))
+    tests = [np.asarray(racetrack.make_road(name).centre) for name in ("test1", "test2", "test3")]
+    for i in range(1, 6):
+        track = bank.bank_road(i).track
+        kappa = np.asarray(track.curvature)
+        assert float(track.width) in (10.0, 12.0) and 14.5 <= 1.0 / np.abs(kappa).max() <= 60.5
+        np.testing.assert_allclose(kappa.sum() * float(track.ds), 2 * math.pi, rtol=1e-3)
+        centre = np.asarray(track.centre)
+        for other in tests:  # a different curve: far from the test road somewhere along the lap
+            assert np.linalg.norm(centre[:, None] - other[None], axis=-1).min(axis=1).max() > 20.0
+    states = jax.jit(jax.vmap(bank.reset))(jax.random.split(jax.random.PRNGKey(3), 48))
+    drawn = np.bincount(np.asarray(states.pipeline_state.road), minlength=6)
+    assert drawn.min() >= 2 and drawn.sum() == 48
+    lane = int(np.argmax(np.asarray(states.pipeline_state.road) == 4))
+    state = jax.tree.map(lambda x: x[lane], states)
+    alone = bank.on_road(bank.bank_road(4))
+    action = jnp.array([0.2, 0.7, 0.0])
+    for got, want in zip(jax.tree.leaves(jax.jit(bank.step)(state, action)),
+                         jax.tree.leaves(jax.jit(alone.step)(state, action)), strict=True):  # fmt: skip
+        np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
+    np.testing.assert_array_equal(np.asarray(jax.jit(bank.expert)(state)), np.asarray(expert_action(alone, state)))
+    with pytest.raises(ConfigError, match="road_bank"):
+        RaceCar(road="random", road_bank=0)
+
+
 def test_range_finders_on_a_straight():
     """Stadium with 1000 m straights: rays from 1 m left of the axis, heading along it or 0.2 rad off, hit the
     edge lines y = −100 ± 6 at (y_edge − y) / sin(ψ + α); the straight-ahead ray exceeds 200 m."""
