@@ -69,7 +69,9 @@ grows by ``damage_gain · (1 + impact speed in m/s)``.  A step whose damage grew
   ``max_range`` when none is closer.
 
 With ``opponent_speeds`` (off by default) 36 more values follow (96-dim): per sector the closing
-speed of the opponent it reports (positive when we approach it), 0 where none.
+speed of the opponent it reports (positive when we approach it), 0 where none.  With
+``opponent_offsets`` (off by default) 36 more follow those: per sector that opponent's offset from
+the axis relative to ours, in half widths (left positive), 0 where none.
 
 With ``normalize_obs`` (default) distances are divided by ``max_range`` (or, with
 ``distance_scale="log"``, mapped by ``log(1 + d) / log(1 + max_range)``) and speeds by
@@ -241,6 +243,11 @@ class RaceCarConfig:
     when approaching) of the opponent the sector reports, 0 where none.  TORCS's sensors (the 60-dim
     observation of §6.1.1) give distances only, from which one frame cannot tell a slower car ahead
     from a faster one."""
+    opponent_offsets: bool = False
+    """Append 36 more values (after the closing speeds, if any): per 10° sector, the offset across the
+    road of the opponent the sector reports relative to ours, ``(o_i − e) / (w / 2)`` (left positive), 0
+    where none.  A 10° sector is 3.5 m wide at 20 m and 13 m at 75 m, so the distances alone cannot
+    tell whether a car ahead holds our line or the next one, which decides where to overtake."""
     speed_scale: float = 300.0 / 3.6
     """Speed unit of the normalised observation (300 km/h)."""
     pedal_map: str = "clip"
@@ -436,8 +443,8 @@ class RaceCar(RobotEnv):
 
     @property
     def observation_size(self) -> int:
-        """60 (thesis §6.1.1), 96 with ``opponent_speeds``."""
-        return 60 + (N_SECTORS if self.config.opponent_speeds else 0)
+        """60 (thesis §6.1.1), 36 more with each of ``opponent_speeds`` and ``opponent_offsets``."""
+        return 60 + N_SECTORS * (int(self.config.opponent_speeds) + int(self.config.opponent_offsets))
 
     def __init__(self, config: RaceCarConfig | None = None, **overrides: Any):
         super().__init__(config, **overrides)
@@ -577,13 +584,15 @@ class RaceCar(RobotEnv):
         opponents = jnp.minimum(jnp.min(masked, axis=1, initial=jnp.inf), cfg.max_range)
         speed = jnp.stack([rs.vel[0], rs.vel[1], jnp.zeros_like(rs.vel[0])])
         out = {"angle": theta, "tracks": tracks, "track_pos": d, "speed": speed, "opponents": opponents}
+        nearest = jnp.argmin(masked, axis=1)  # [36] the opponent each sector reports
+        seen = jnp.any(in_sector, axis=1) & (opponents < cfg.max_range)
         if cfg.opponent_speeds:
             fwd, left = _rot(rs.yaw)
             v_rel = (rs.vel[0] * fwd + rs.vel[1] * left)[None, :] - opp_vel  # [N, 2] our velocity relative to theirs
             closing = jnp.sum(v_rel * rel, axis=-1) / jnp.maximum(dist, 1e-3)  # [N] > 0: we approach
-            nearest = jnp.argmin(masked, axis=1)  # [36]
-            seen = jnp.any(in_sector, axis=1) & (opponents < cfg.max_range)
             out["opponent_speeds"] = jnp.where(seen, closing[nearest], 0.0)
+        if cfg.opponent_offsets:
+            out["opponent_offsets"] = jnp.where(seen, (rs.opp_offset - rs.lateral)[nearest], 0.0)
         return out
 
     def observe(self, rs: RaceState) -> jax.Array:
@@ -603,6 +612,9 @@ class RaceCar(RobotEnv):
         if cfg.opponent_speeds:
             closing = sen["opponent_speeds"]
             parts.append(closing / cfg.speed_scale if cfg.normalize_obs else closing)
+        if cfg.opponent_offsets:
+            offsets = sen["opponent_offsets"]
+            parts.append(offsets / self.track.half_width if cfg.normalize_obs else offsets)
         return jnp.concatenate(parts)
 
     # ---------------------------------------------------------------- physics

@@ -311,6 +311,26 @@ def test_opponent_closing_speeds_by_hand(start):
     np.testing.assert_allclose(obs[:60], RaceCar(random_start=False).observe(scene.pipeline_state), atol=1e-6)
 
 
+def test_opponent_offsets_by_hand(start):
+    """With ``opponent_offsets``, each sector also reports its car's offset across the road relative to ours:
+    a car 25 m ahead 3 m left of the axis, ours 1 m right of it: 4 m, i.e. 4 / 6 half widths on the 12 m road."""
+    env = RaceCar(random_start=False, opponent_speeds=True, opponent_offsets=True)
+    assert env.observation_size == 132
+    n = env.config.n_opponents
+    progress = jnp.asarray([25.0] + [600.0 + 30 * i for i in range(n - 1)], jnp.float32)
+    offset = jnp.asarray([3.0] + [0.0] * (n - 1), jnp.float32)
+    scene = _scene(start, opp_progress=progress, opp_offset=offset, lateral=-1.0)
+    sen = env.sensors(scene.pipeline_state)
+    ahead = int(np.argmin(np.asarray(sen["opponents"])))
+    assert float(sen["opponent_offsets"][ahead]) == pytest.approx(4.0, abs=1e-5)
+    seen = np.asarray(sen["opponents"]) < 200.0
+    assert (np.asarray(sen["opponent_offsets"])[~seen] == 0.0).all()
+    obs = env.observe(scene.pipeline_state)
+    np.testing.assert_allclose(obs[96:], sen["opponent_offsets"] / 6.0, atol=1e-6)
+    np.testing.assert_allclose(obs[:96], RaceCar(random_start=False, opponent_speeds=True).observe(
+        scene.pipeline_state), atol=1e-6)  # fmt: skip
+
+
 # ------------------------------------------------------- robustness, recompiles
 
 
