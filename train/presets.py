@@ -37,6 +37,7 @@ __all__ = [
     "PPO_PRESETS",
     "ppo_env_overrides",
     "ddpg_env_overrides",
+    "RACING_ENV",
     "lstm_variant",
     "ppo_preset",
     "resolve_preset",
@@ -362,6 +363,15 @@ def a2c_preset(
 DDPG_PRESETS = ("auto", "thesis", "cpu", "fast")
 
 
+RACING_ENV = {"road": "random", "opponent_speeds": True, "opponent_offsets": True, "distance_scale": "log",
+              "end_on_collision": True}
+"""``racecar`` under ``cpu`` and ``fast``: train on a bank of generated roads, see the opponents' closing
+speeds and offsets across the road, log-scaled distances, and end an episode at a collision.  One H100,
+``fast``, 3 seeds, 20 laps per road (``benchmarks/results/gpu-nvidia_h100_80gb_hbm3-racing-*``), successes
+on train / test1 / test2 / test3: TD3 trained on the training road alone 11.7 / 0 / 0 / 0 (H200); on the
+bank 11.0 / 15.3 / 11.7 / 15.3; with the offsets and the end at a collision 16.0 / 16.7 / 15.3 / 18.0."""
+
+
 def ddpg_env_overrides(name: str, env_name: str) -> dict:
     """Env settings a DDPG preset needs (the user's ``--env-config`` goes on top): a sharper reward.
 
@@ -369,6 +379,7 @@ def ddpg_env_overrides(name: str, env_name: str) -> dict:
     :func:`ppo_env_overrides`, for the same reason (CPU, sine, seed 0, ``cpu`` preset: x / y / θ
     sums 7.75 / 5.75 / 2.22 at Eq. 3.23's a_p = 1, 1.43 / 1.13 / 0.83 at a_p = 100;
     ``benchmarks/results/cpu-2core-ddpg_tracking.md``; H100, ``fast``, 3 seeds: 1.08 / 0.95 / 0.85).
+    ``racecar`` under ``cpu`` and ``fast``: :data:`RACING_ENV`.
     ``scara`` under ``cpu`` and ``fast``: Eq. 3.22's coefficient 50 instead of 2 (H100, ``fast``,
     3 seeds: x / y / z sums 4.26 / 4.38 / 3.26 at 2, 1.73 / 2.10 / 1.95 at 50;
     ``benchmarks/results/gpu-nvidia_h100_80gb_hbm3-ddpg_tracking.md``).  ``thesis`` keeps Eq. 3.22-3.23.
@@ -376,7 +387,7 @@ def ddpg_env_overrides(name: str, env_name: str) -> dict:
     if resolve_preset(name) not in ("cpu", "fast"):
         return {}
     sharper = {"unicycle": {"a_p": 100.0}, "scara": {"reward_coef": 50.0},
-               "racecar": {"opponent_speeds": True, "distance_scale": "log"}}  # fmt: skip
+               "racecar": RACING_ENV}  # fmt: skip
     return sharper.get(env_name.split(":")[-1], {})
 
 
@@ -476,7 +487,7 @@ def _racing_preset() -> tuple[DDPGConfig, dict]:
     step are scaled by 0.01 in the critic target (Q stays near 30 at γ = 0.99).
     ``cpu`` (16 lanes) and ``fast`` (1 024 lanes) imitate for half the run on larger mini-batches,
     then fine-tune with the actor anchored to the expert's labels (``imitation_weight``); their
-    env adds the opponents' closing speeds to the observation (:func:`ddpg_env_overrides`).
+    env is :data:`RACING_ENV` (:func:`ddpg_env_overrides`).
     """
     base = DDPGConfig(
         schedule="steps", total_steps=100_000, num_envs=1, unroll_length=1, updates_per_iteration=1,

@@ -57,7 +57,8 @@ def test_tracking_presets_sharpen_the_reward_and_env_config_wins(cli):
 
 def test_racing_presets_imitate_first():
     """racecar: every preset imitates the expert first (thesis §6.1.2) with Table 6.1's OU noise; cpu and
-    fast add the opponents' closing speeds to the observation; ``--pretrain none`` trains from scratch."""
+    fast train on the bank of roads and add the opponents' closing speeds and offsets to the observation;
+    ``--pretrain none`` trains from scratch."""
     for preset in ("thesis", "cpu", "fast"):
         cfg = td3_cli.parse(["--env", "racecar", "--preset", preset]).td3
         assert cfg.pretrain == "imitation" and cfg.twin_critics and cfg.noise == "ou"
@@ -65,8 +66,11 @@ def test_racing_presets_imitate_first():
         assert cfg.noise_scale == (0.2, 0.1, 0.05) and 0 < cfg.pretrain_steps < cfg.total_steps
     assert ddpg_cli.parse(["--env", "racecar", "--pretrain", "none"]).ddpg.pretrain == "none"
     env_of = lambda *argv: ddpg_cli.CLI.build(ddpg_cli.parse(list(argv)))[0]  # noqa: E731
-    assert env_of("--env", "racecar", "--preset", "cpu").observation_size == 96
-    assert env_of("--env", "racecar", "--preset", "thesis").observation_size == 60
+    cpu = env_of("--env", "racecar", "--preset", "cpu")
+    assert cpu.observation_size == 132 and cpu.n_roads == 64 and cpu.config.end_on_collision
+    thesis = env_of("--env", "racecar", "--preset", "thesis")
+    assert thesis.observation_size == 60 and thesis.n_roads == 1 and not thesis.config.end_on_collision
+    assert env_of("--env", "racecar", "--preset", "cpu", "--env-config", "road=train").n_roads == 1
 
 
 def test_racing_run_resumes_through_the_imitation_stage_and_drives_laps(tmp_path):
