@@ -8,6 +8,7 @@ Methods: ``expert`` (the scripted driver, :func:`envs_mjx.racecar.expert_action`
 ``train.td3 --env racecar``), each with the preset's settings (``train/presets.py``), trained on
 the training road only.  The seeds of a method run as one vmapped program.  Per road and seed:
 laps ending in success, a collision, out of the track or stalled (:data:`envs_mjx.racecar.LAP_OUTCOMES`),
+the laps whose collisions touched another car or a wall,
 mean overtakes and mean speed; the goal is at least 19 successes of 20 on every road with at
 most one collision.  Writes ``benchmarks/results/<device>-racing[-label].md`` and ``.json``.
 """
@@ -26,7 +27,7 @@ import envs_mjx
 from benchmarks import provenance
 from benchmarks.tracking_report import pairs, train_seeds
 from envs_mjx import racetrack
-from envs_mjx.racecar import LAP_OUTCOMES, expert_action, lap_summary, make_lap_test
+from envs_mjx.racecar import CONTACTS, LAP_OUTCOMES, expert_action, lap_summary, make_lap_test
 from jaxrl_robot.agents.ddpg import make_train, make_trainer
 from train.presets import ddpg_env_overrides, ddpg_preset
 from train.td3 import TD3_SETTINGS
@@ -50,9 +51,10 @@ def config_for(method: str, preset: str, env: Any, overrides: dict[str, Any]):
     cfg = ddpg_preset(preset, "racecar", int(env.episode_length))
     if method == "td3":
         cfg = cfg.replace(**TD3_SETTINGS)
-    if method == "imitation":
+    cfg = cfg.replace(**overrides)
+    if method == "imitation":  # after the overrides: a --set total_steps still imitates for the whole run
         cfg = cfg.replace(pretrain_steps=cfg.total_steps)
-    return cfg.replace(**overrides).validate()
+    return cfg.validate()
 
 
 def per_seed(results: dict[str, np.ndarray]) -> list[dict[str, dict]]:
@@ -66,7 +68,7 @@ def aggregate(seeds: list[dict[str, dict]]) -> dict[str, dict[str, Any]]:
     out = {}
     for road in ROADS:
         row: dict[str, Any] = {}
-        for k in (*LAP_OUTCOMES, "overtakes", "speed_kmh"):
+        for k in (*LAP_OUTCOMES, *CONTACTS, "overtakes", "speed_kmh"):
             vals = np.array([s[road][k] for s in seeds], float)
             row[k] = {"mean": float(vals.mean()), "std": float(vals.std()), "median": float(np.median(vals)),
                       "seeds": vals.tolist()}  # fmt: skip
@@ -111,12 +113,12 @@ def to_markdown(report: dict[str, Any]) -> str:
         f"preset `{meta['preset']}`, {meta['seeds']} seeds from key {meta['seed0']}, {meta['laps']} laps per road "
         f"per seed (random starts and opponents, test key {meta['test_key']}); env overrides "
         f"{meta['env_overrides']}. Goal: {GOAL}. Cells: mean ± std over seeds of the laps of each outcome "
-        "(success / collision / out of track / stalled), mean overtakes per lap, mean speed; the thesis's "
-        "(success / collision / out / overtakes) beside.",
+        "(success / collision / out of track / stalled), the laps whose collisions touched another car and a "
+        "wall, mean overtakes per lap, mean speed; the thesis's (success / collision / out / overtakes) beside.",
         "",
-        "| method | road | success | collision | out of track | stalled | overtakes | km/h | thesis | met | "
-        "successes per seed (median) |",
-        "|---|---|---:|---:|---:|---:|---:|---:|---|---|---|",
+        "| method | road | success | collision | car / wall | out of track | stalled | overtakes | km/h | thesis "
+        "| met | successes per seed (median) |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---|---|---|",
     ]
     for case in report["cases"]:
         for road, row in case["roads"].items():
@@ -126,7 +128,8 @@ def to_markdown(report: dict[str, Any]) -> str:
             seeds = ", ".join(f"{v:g}" for v in row["success"]["seeds"])
             seeds += f" ({row['success']['median']:g})" if "median" in row["success"] else ""
             lines.append(
-                f"| {case['method']} | {road} | {cell('success')} | {cell('collision')} | {cell('out_of_track')} | "
+                f"| {case['method']} | {road} | {cell('success')} | {cell('collision')} | "
+                f"{row['car_contact']['mean']:.1f} / {row['wall_contact']['mean']:.1f} | {cell('out_of_track')} | "
                 f"{cell('stalled')} | {cell('overtakes', 2)} | {cell('speed_kmh', 0)} | {th} | "
                 f"{'yes' if row['met'] else 'no'} | {seeds} |"
             )

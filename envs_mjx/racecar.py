@@ -338,7 +338,8 @@ class Road:
     profile: jax.Array
 
 
-COUNTERS = ("damage", "collisions", "out_count", "slow_count", "overtakes", "overtaken", "time")
+COUNTERS = ("damage", "collisions", "car_collisions", "wall_collisions", "out_count", "slow_count", "overtakes",
+            "overtaken", "time")
 """The counters of :class:`RaceState`, zero at the start of an episode."""
 
 
@@ -353,7 +354,8 @@ class RaceState:
     (steer, accel, brake)``.  Opponents: ``opp_progress [N]`` (m along the axis from our start
     line, unwrapped), ``opp_offset [N]`` (m, left positive), ``opp_speed [N]``, ``opp_factor [N]``,
     ``opp_top [N]`` and ``opp_ahead [N]`` (1 where ahead of us after the last step).  Counters:
-    ``damage``, ``collisions`` (steps with a collision), ``out_count``, ``slow_count``,
+    ``damage``, ``collisions`` (steps with a collision; ``car_collisions`` / ``wall_collisions`` those with
+    a contact of that kind), ``out_count``, ``slow_count``,
     ``overtakes``, ``overtaken``, ``time`` (s).  ``road []`` (int32): the index of the road driven
     in the env's bank (``road='random'``), 0 otherwise.
     """
@@ -376,6 +378,8 @@ class RaceState:
     opp_ahead: jax.Array
     damage: jax.Array
     collisions: jax.Array
+    car_collisions: jax.Array
+    wall_collisions: jax.Array
     out_count: jax.Array
     slow_count: jax.Array
     overtakes: jax.Array
@@ -661,7 +665,8 @@ class RaceCar(RobotEnv):
         return rs.replace(pos=pos, yaw=rs.yaw + h * vel[2], vel=vel)
 
     def _contacts(self, rs: RaceState) -> tuple[RaceState, jax.Array]:
-        """Walls and opponents: move our car out, drop its velocity into them; returns the damage added."""
+        """Walls and opponents: move our car out, drop its velocity into them; returns the damage added
+        ``[2]`` by the walls and by the opponents."""
         cfg = self.config
         hl, hw = 0.5 * cfg.car_length, 0.5 * cfg.car_width
         fwd, left = _rot(rs.yaw)
@@ -677,7 +682,7 @@ class RaceCar(RobotEnv):
         v_out = jnp.maximum(jnp.dot(v_world, n_wall), 0.0)
         pos = rs.pos - jnp.where(wall, excess, 0.0) * n_wall
         v_world = v_world - jnp.where(wall, v_out, 0.0) * n_wall
-        damage = jnp.where(wall, cfg.damage_gain * (1.0 + v_out), 0.0)
+        wall_damage = jnp.where(wall, cfg.damage_gain * (1.0 + v_out), 0.0)
 
         # opponents: separating-axis test of two rectangles, vectorised over the N opponents
         opp_pos, opp_yaw, opp_vel = self.opponent_poses(rs)
@@ -697,10 +702,10 @@ class RaceCar(RobotEnv):
         pos = pos + jnp.sum(jnp.where(hit, depth, 0.0)[:, None] * normal, axis=0)
         closing = jnp.minimum(jnp.sum((v_world - opp_vel) * normal, axis=1), 0.0)  # [N], ≤ 0
         v_world = v_world - jnp.sum(jnp.where(hit, closing, 0.0)[:, None] * normal, axis=0)
-        damage = damage + jnp.sum(jnp.where(hit, cfg.damage_gain * (1.0 - closing), 0.0))
+        car_damage = jnp.sum(jnp.where(hit, cfg.damage_gain * (1.0 - closing), 0.0))
 
         vel = jnp.stack([jnp.dot(v_world, fwd), jnp.dot(v_world, left), rs.vel[2]])
-        return rs.replace(pos=pos, vel=vel), damage
+        return rs.replace(pos=pos, vel=vel), jnp.stack([wall_damage, car_damage])
 
     def _locate(self, rs: RaceState) -> RaceState:
         """Update the projection on the axis and the unwrapped progress."""
@@ -809,7 +814,8 @@ class RaceCar(RobotEnv):
             rs, hit = self._contacts(rs)
             return rs, damage + hit
 
-        rs, damage = jax.lax.fori_loop(0, cfg.n_substeps, substep, (rs, jnp.zeros((), jnp.float32)))
+        rs, damages = jax.lax.fori_loop(0, cfg.n_substeps, substep, (rs, jnp.zeros(2, jnp.float32)))
+        damage = jnp.sum(damages)
         rs = self._locate(rs)
 
         sen = self.sensors(rs)
@@ -839,6 +845,8 @@ class RaceCar(RobotEnv):
             opp_ahead=ahead,
             damage=rs.damage + damage,
             collisions=rs.collisions + collision,
+            car_collisions=rs.car_collisions + (damages[1] > 0.0),
+            wall_collisions=rs.wall_collisions + (damages[0] > 0.0),
             out_count=out_count,
             slow_count=slow_count,
             overtakes=overtakes,
@@ -851,6 +859,8 @@ class RaceCar(RobotEnv):
             **events,
             damage=rs.damage,
             collisions=rs.collisions,
+            car_collisions=rs.car_collisions,
+            wall_collisions=rs.wall_collisions,
             out_count=out_count,
             overtakes=overtakes,
             overtaken=overtaken,
@@ -878,6 +888,8 @@ METRIC_NAMES = (
     "out_limit",
     "damage",
     "collisions",
+    "car_collisions",
+    "wall_collisions",
     "out_count",
     "overtakes",
     "overtaken",
@@ -981,6 +993,9 @@ def expert_action(env: RaceCar, state: State) -> jax.Array:
     return env.action_from_controls(steer, accel, brake)
 
 
+CONTACTS = ("car_contact", "wall_contact")
+"""What a test lap's collisions touched (both may be 1; either implies the outcome ``collision``)."""
+
 LAP_OUTCOMES = ("success", "collision", "out_of_track", "stalled")
 """How a test lap ends (thesis Tables 6.2–6.3): a collision (with a car or a wall) at any point;
 else out of the track at any point; else ``success`` if the lap was finished; else ``stalled``
@@ -1000,6 +1015,7 @@ def make_lap_test(
     jit-able (the roads are built here, outside any trace).
 
     ``test`` returns ``[R, laps]`` arrays: one 0/1 entry per outcome of :data:`LAP_OUTCOMES`,
+    ``car_contact`` / ``wall_contact`` (0/1: the lap touched another car / a wall),
     ``overtakes``, ``overtaken``, ``rank`` (final), ``speed`` (mean speed along the axis, m/s),
     ``time`` (s) and ``progress`` (m).
     """
@@ -1026,7 +1042,9 @@ def make_lap_test(
         success = (1.0 - collision) * (1.0 - out) * m["success"]
         time = jnp.maximum(rs.time, cfg.dt)
         return {"success": success, "collision": collision, "out_of_track": out,
-                "stalled": 1.0 - collision - out - success, "overtakes": rs.overtakes, "overtaken": rs.overtaken,
+                "stalled": 1.0 - collision - out - success, "car_contact": (rs.car_collisions > 0).astype(jnp.float32),
+                "wall_contact": (rs.wall_collisions > 0).astype(jnp.float32),
+                "overtakes": rs.overtakes, "overtaken": rs.overtaken,
                 "rank": m["rank"], "speed": rs.progress / time, "time": rs.time, "progress": rs.progress}  # fmt: skip
 
     def test(act: Callable[[RaceCar, State], jax.Array], key: jax.Array) -> dict[str, jax.Array]:
@@ -1038,12 +1056,13 @@ def make_lap_test(
 
 def lap_summary(result: Mapping[str, Any], roads: tuple[str, ...] = tuple(racetrack.ROADS)) -> dict[str, dict]:
     """Per road (host numbers) from the arrays of :func:`make_lap_test`'s test: ``laps``, the count of each outcome,
+    the laps with a contact with another car (``car_contact``) and with a wall (``wall_contact``),
     ``overtakes`` (mean per lap), ``speed_kmh`` (mean), ``rank`` (mean final rank)."""
     r = {k: np.asarray(v) for k, v in result.items()}
     out = {}
     for i, road in enumerate(roads):
         row = {"laps": int(r["success"].shape[1])}
-        row.update({k: int(round(float(r[k][i].sum()))) for k in LAP_OUTCOMES})
+        row.update({k: int(round(float(r[k][i].sum()))) for k in (*LAP_OUTCOMES, *CONTACTS) if k in r})
         row.update(overtakes=float(r["overtakes"][i].mean()), speed_kmh=float(3.6 * r["speed"][i].mean()),
                    rank=float(r["rank"][i].mean()))  # fmt: skip
         out[road] = row

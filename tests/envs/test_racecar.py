@@ -176,6 +176,7 @@ def test_rear_end_collision(env, jstep, start):
     s = jstep(scene, jnp.array([0.0, 0.0, 0.0]))
     m = s.metrics
     assert float(m["collision"]) == 1.0 and float(m["collisions"]) == 1.0
+    assert float(m["car_collisions"]) == 1.0 and float(m["wall_collisions"]) == 0.0
     assert float(m["damage"]) >= env.config.damage_gain * 10.0  # at least one contact at the 10 m/s impact
     assert float(s.reward) == -10.0 and float(m["penalty"]) == -10.0
     assert float(s.pipeline_state.vel[0]) < 0.5  # its velocity into the standing car is gone
@@ -201,6 +202,7 @@ def test_side_by_side_no_collision_then_wall(env, jstep, start):
     s = jstep(wall, jnp.zeros(3))
     m = s.metrics
     assert float(m["collision"]) == 1.0 and float(m["out_of_track"]) == 1.0 and float(s.reward) == -10.0
+    assert float(m["wall_collisions"]) == 1.0 and float(m["car_collisions"]) == 0.0
     assert (np.asarray(s.obs[OBS_SLICES["tracks"]]) == -1.0).all()  # off the road: range finders read −1
     limit = float(env.track.half_width) + env.config.runoff
     assert abs(float(s.pipeline_state.lateral)) <= limit - 0.5 * env.config.car_width + 0.05
@@ -269,6 +271,7 @@ def test_expert_finishes_laps_on_every_road(expert_laps):
     assert (m["success"] == 1.0).all(), dict(zip(names, m["success"].tolist(), strict=True))
     assert (m["out_of_track"] == 0).all() and (m["stalled"] == 0).all()
     assert m["collision"].sum() <= 2  # measured: none
+    np.testing.assert_array_equal(m["collision"], np.maximum(m["car_contact"], m["wall_contact"]))
     assert (m["overtakes"] >= 3).all()  # it passes the slower cars (9 start ahead of it)
     lengths = np.array([float(racetrack.make_road(n).length) for n in names])[:, None]
     # one lap, then the episode ends
@@ -285,8 +288,10 @@ def test_lap_outcomes_of_a_car_that_never_drives():
     total = sum(np.asarray(m[k]) for k in LAP_OUTCOMES)
     np.testing.assert_array_equal(total, np.ones((2, 3)))
     np.testing.assert_array_equal(m["stalled"], np.ones((2, 3)))
+    assert not np.asarray(m["car_contact"]).any() and not np.asarray(m["wall_contact"]).any()
     summary = lap_summary(m, ("test1", "train"))
     assert summary["train"]["stalled"] == 3 and summary["test1"]["success"] == 0 and summary["train"]["laps"] == 3
+    assert summary["train"]["car_contact"] == 0 and summary["train"]["wall_contact"] == 0
     assert summary["train"]["speed_kmh"] < 1.0
 
 
