@@ -1,8 +1,18 @@
-"""Our PPO beside brax's own on brax's standard tasks: return at equal env steps, wall time, steps/s.
+"""Our PPO beside brax's own on brax's standard tasks (our TD3 / DDPG beside brax's SAC with ``--algo``):
+return at equal env steps, wall time, steps/s.
 
     python -m benchmarks.brax_tasks                                   # 5 tasks, 3 seeds, brax's budgets
     python -m benchmarks.brax_tasks --tasks inverted_pendulum --seeds 3
     python -m benchmarks.brax_tasks --tasks reacher --steps 5000000    # a shorter budget for both
+    python -m benchmarks.brax_tasks --algo td3 --tasks hopper --steps 1000000   # off-policy: brax's SAC beside
+
+Off-policy (``--algo td3`` or ``ddpg``): the tasks brax trains with SAC (:data:`train.presets.BRAX_SAC`,
+hopper and walker2d), brax's ``sac.train`` with the row as it is, ours through
+:func:`train.presets.brax_sac_ddpg_config`. Both make ``grad_updates_per_step`` updates per
+``num_envs`` env steps, so at equal env steps they learn from the same data, at a wall time that the
+updates dominate: where env steps are cheap (thousands of simulated lanes) PPO's budget of 10–50 M
+steps usually takes less time than the off-policy budget of a few million, and an off-policy method
+is the tool when env steps are what costs (a real robot, a slow simulator).
 
 Both train on the same env object (``brax.envs.get_environment(task, backend=--backend)``, MJX by
 default) for the same env steps with the settings of :data:`train.presets.BRAX_PPO`: brax's
@@ -18,8 +28,8 @@ program called per seed (``--seed-map vmap``: one vmapped program), brax's one a
   (128 episodes each), ours has no evaluation inside training; **env steps/s**: env steps of all
   seeds over that wall time.
 
-Goals (issue 15): per task our return ≥ brax's and our wall per seed ≤ brax's. Results:
-``benchmarks/results/<device>-brax_tasks.json`` and ``.md`` with one learning-curve figure per task.
+Goals: per task our return ≥ brax's and our wall per seed ≤ brax's. Results:
+``benchmarks/results/<device>-brax_tasks[-<algo>].json`` and ``.md`` with one learning-curve figure per task.
 """
 
 from __future__ import annotations
@@ -33,36 +43,52 @@ import jax
 import numpy as np
 
 from benchmarks import provenance
+from benchmarks.tracking_report import pairs
 from benchmarks.train_throughput import RESULTS, device_label
 from jaxrl_robot import plots
-from jaxrl_robot.agents.ppo import make_trainer
+from jaxrl_robot.agents import ddpg, ppo
 from jaxrl_robot.evaluation import run_test_episodes
-from train.presets import BRAX_PPO, brax_ppo_config
+from jaxrl_robot.types import Trainer
+from train.presets import BRAX_PPO, BRAX_SAC, brax_ppo_config, brax_sac_ddpg_config
+from train.td3 import TD3_SETTINGS
+
+ALGOS = {"ppo": ("PPO", "ppo", BRAX_PPO), "td3": ("TD3", "sac", BRAX_SAC), "ddpg": ("DDPG", "sac", BRAX_SAC)}
+"""``--algo``: (our algorithm's name, brax's peer, the table of tasks and settings)."""
 
 
-def brax_row(task: str, num_envs: int) -> dict[str, float]:
-    """The task's :data:`BRAX_PPO` row; with ``num_envs`` that many envs and the batch scaled alike
-    (the same unrolls per env and mini-batches per pass: a small machine's version of the task)."""
-    row = dict(BRAX_PPO[task])
+def brax_row(task: str, num_envs: int, algo: str = "ppo") -> dict[str, float]:
+    """The task's row of ``algo``'s table; with ``num_envs`` that many envs (PPO: the batch scaled alike,
+    the same unrolls per env and mini-batches per pass: a small machine's version of the task)."""
+    row = dict(ALGOS[algo][2][task])
     if num_envs:
-        row["batch_size"] = max(1, int(row["batch_size"] * num_envs) // int(row["num_envs"]))
+        if algo == "ppo":
+            row["batch_size"] = max(1, int(row["batch_size"] * num_envs) // int(row["num_envs"]))
         row["num_envs"] = num_envs
     return row
 
 
+def our_trainer(algo: str, task: str, env: Any, row: dict[str, float], steps: int) -> tuple[Trainer, int]:
+    """Our trainer of ``algo`` with the task's ``row`` for ``steps`` env steps, and its episode length."""
+    if algo == "ppo":
+        config = brax_ppo_config(task, int(env.action_size), **row).replace(total_steps=steps)
+        return ppo.make_trainer(config, env), config.episode_length
+    config = brax_sac_ddpg_config(task, **row).replace(total_steps=steps)
+    config = (config.replace(**TD3_SETTINGS) if algo == "td3" else config).validate()
+    return ddpg.make_trainer(config, env, iterations_per_update=max(1, config.iterations // 20)), config.episode_length
+
+
 def ours(env: Any, task: str, row: dict[str, float], steps: int, seeds: int, eval_episodes: int,
-         seed_map: str = "loop") -> dict[str, Any]:  # fmt: skip
-    """Train our PPO on ``seeds`` keys, one vmapped program (``seed_map='vmap'``) or one compiled
+         seed_map: str = "loop", algo: str = "ppo") -> dict[str, Any]:  # fmt: skip
+    """Train our ``algo`` on ``seeds`` keys, one vmapped program (``seed_map='vmap'``) or one compiled
     program called per key (``'loop'``); returns, curves and wall time (compilation included)."""
-    config = brax_ppo_config(task, int(env.action_size), **row).replace(total_steps=steps)
-    trainer = make_trainer(config, env)
+    trainer, episode_length = our_trainer(algo, task, env, row, steps)
 
     def train(key: jax.Array) -> tuple[Any, Any]:
         state = trainer.init(key)
         return jax.lax.scan(lambda s, _: trainer.update(s), state, None, length=trainer.num_updates)
 
     def test(state: Any, key: jax.Array) -> jax.Array:
-        return run_test_episodes(key, env, trainer.policy(state), eval_episodes, config.episode_length)["return"]
+        return run_test_episodes(key, env, trainer.policy(state), eval_episodes, episode_length)["return"]
 
     keys, eval_keys = jax.random.split(jax.random.PRNGKey(0), seeds), jax.random.split(jax.random.PRNGKey(1), seeds)
     t0 = time.perf_counter()
@@ -83,11 +109,12 @@ def ours(env: Any, task: str, row: dict[str, float], steps: int, seeds: int, eva
             "curve_steps": done.tolist(), "curves": per_chunk.tolist()}  # fmt: skip
 
 
-def theirs(env: Any, row: dict[str, float], steps: int, seeds: int) -> dict[str, Any]:
-    """brax's ``ppo.train`` with the task's ``row`` (brax's terms), one seed after another."""
+def theirs(env: Any, row: dict[str, float], steps: int, seeds: int, peer: str = "ppo") -> dict[str, Any]:
+    """brax's ``ppo.train`` (``peer='sac'``: ``sac.train``) with the task's ``row`` (brax's terms), one seed
+    after another."""
     from benchmarks.peers.brax_ppo import train_published
 
-    runs = [train_published(env, row, steps, seed) for seed in range(seeds)]
+    runs = [train_published(env, row, steps, seed, peer) for seed in range(seeds)]
     walls = [r["wall_s"] for r in runs]
     return {"returns": [r["final_return"] for r in runs], "wall_s": float(sum(walls)),
             "wall_per_seed_s": float(np.mean(walls)), "env_steps": runs[0]["env_steps"],
@@ -96,10 +123,12 @@ def theirs(env: Any, row: dict[str, float], steps: int, seeds: int) -> dict[str,
 
 
 def to_markdown(result: dict[str, Any]) -> str:
-    out = [f"# Our PPO beside brax's PPO on brax's tasks — {result['device']}", "",
+    name, peer, _ = ALGOS[result.get("algo", "ppo")]
+    table = "BRAX_PPO" if peer == "ppo" else "BRAX_SAC"
+    out = [f"# Our {name} beside brax's {peer.upper()} on brax's tasks — {result['device']}", "",
            f"Backend `{result['backend']}`; {result['seeds']} seeds of ours ({result['seed_map']}), "
            f"{result['brax_seeds']} of brax's (one after another); the same env steps and settings "
-           "(`train.presets.BRAX_PPO`). Return: deterministic "
+           f"(`train.presets.{table}`). Return: our deterministic "
            "policy on fresh episodes (ours: "
            f"{result['eval_episodes']} episodes; brax: its own final evaluation). Wall: compilation included. "
            "Bold: at the goal (our return ≥ brax's; our wall per seed ≤ brax's).", "",
@@ -134,13 +163,18 @@ def figure(task: dict[str, Any], out_dir: str) -> str | None:
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--tasks", nargs="+", default=list(BRAX_PPO), choices=list(BRAX_PPO))
+    p.add_argument("--algo", default="ppo", choices=list(ALGOS), help="ours: ppo (brax's PPO beside) or td3 / ddpg "
+                   "(brax's SAC beside)")  # fmt: skip
+    p.add_argument("--tasks", nargs="+", default=None, metavar="TASK",
+                   help=f"PPO: {', '.join(BRAX_PPO)} (default: all); TD3 / DDPG: {', '.join(BRAX_SAC)} (default: all)")
     p.add_argument("--seeds", type=int, default=3)
     p.add_argument("--brax-seeds", type=int, default=0, help="brax's seeds (0: --seeds)")
     p.add_argument("--steps", type=int, default=0, help="env steps per seed (0: brax's budget of the task)")
     p.add_argument("--backend", default="mjx", help="brax physics backend (mjx, generalized, positional, spring)")
     p.add_argument("--eval-episodes", type=int, default=128)
     p.add_argument("--num-envs", type=int, default=0, help="envs of both trainers, batch scaled alike (0: the row's)")
+    p.add_argument("--row", nargs="*", default=[], metavar="KEY=VALUE",
+                   help="settings of both trainers in brax's terms over the task's row (e.g. min_replay_size=1024)")
     p.add_argument("--no-brax", action="store_true", help="ours only")
     p.add_argument("--seed-map", default="loop", choices=["loop", "vmap"],
                    help="our seeds: one program called per seed, or one vmapped program (XLA's CPU compiler "
@@ -148,26 +182,32 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--out", default=RESULTS)
     provenance.add_args(p)
     args = p.parse_args(argv)
+    table = ALGOS[args.algo][2]
+    args.tasks = args.tasks or list(table)
+    unknown = [t for t in args.tasks if t not in table]
+    if unknown:
+        p.error(f"--tasks {unknown[0]!r}: no brax settings for --algo {args.algo}; valid: {', '.join(table)}")
     from brax import envs as brax_envs
 
     brax_seeds = args.brax_seeds or args.seeds
     prov = provenance.record("benchmarks.brax_tasks", argv, seeds=f"ours: split(PRNGKey(0), {args.seeds}); brax: "
                              f"seed 0..{brax_seeds - 1}", commit=args.commit)  # fmt: skip
-    stem = f"{args.out}/{device_label()}-brax_tasks"
-    result = {"benchmark": "brax_tasks", "provenance": prov, "device": device_label(), "backend": args.backend,
+    stem = f"{args.out}/{device_label()}-brax_tasks" + ("" if args.algo == "ppo" else f"-{args.algo}")
+    result = {"benchmark": "brax_tasks", "algo": args.algo, "provenance": prov, "device": device_label(),
+              "backend": args.backend,
               "seeds": args.seeds, "seed_map": args.seed_map, "brax_seeds": brax_seeds,
               "eval_episodes": args.eval_episodes,
               "figures": stem + "-figures", "tasks": []}  # fmt: skip
     os.makedirs(result["figures"], exist_ok=True)
     for task in args.tasks:
         env = brax_envs.get_environment(task, backend=args.backend)
-        steps = args.steps or int(BRAX_PPO[task]["num_timesteps"])
-        settings = brax_row(task, args.num_envs)
+        steps = args.steps or int(table[task]["num_timesteps"])
+        settings = {**brax_row(task, args.num_envs, args.algo), **pairs(args.row)}
         row = {"task": task, "settings": settings,
-               "ours": ours(env, task, settings, steps, args.seeds, args.eval_episodes, args.seed_map)}
+               "ours": ours(env, task, settings, steps, args.seeds, args.eval_episodes, args.seed_map, args.algo)}
         print(task, "ours", [round(r, 1) for r in row["ours"]["returns"]], f"{row['ours']['wall_s']:.0f} s", flush=True)
         if not args.no_brax:
-            row["brax"] = theirs(env, settings, steps, brax_seeds)
+            row["brax"] = theirs(env, settings, steps, brax_seeds, ALGOS[args.algo][1])
             print(task, "brax", [round(r, 1) for r in row["brax"]["returns"]], f"{row['brax']['wall_s']:.0f} s",
                   flush=True)  # fmt: skip
         else:

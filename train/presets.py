@@ -31,8 +31,11 @@ from jaxrl_robot.agents.ppo import PPOConfig
 __all__ = [
     "BRAX_COLUMNS",
     "BRAX_PPO",
+    "BRAX_SAC",
+    "BRAX_SAC_COLUMNS",
     "a2c_preset",
     "brax_ppo_config",
+    "brax_sac_ddpg_config",
     "distribute",
     "PPO_PRESETS",
     "ppo_env_overrides",
@@ -101,6 +104,48 @@ def brax_ppo_config(task: str, action_size: int, **row: float) -> PPOConfig:
         learn_std=True, normalize_obs=True, normalize_advantages=True, batch_norm=False,
         actor_hidden=(32, 32, 32, 32), critic_hidden=(256,) * 5, episode_length=int(b["episode_length"]),
         reset_refresh=1.0,
+    )  # fmt: skip
+
+
+BRAX_SAC_COLUMNS = ("num_timesteps", "num_envs", "batch_size", "grad_updates_per_step", "discounting",
+                    "reward_scaling", "learning_rate", "episode_length", "max_replay_size", "min_replay_size")
+"""The columns of :data:`BRAX_SAC`: the arguments of brax's ``sac.train`` they are."""
+
+# brax's training notebook (github.com/google/brax, notebooks/training.ipynb, `train_fn`): the tasks it
+# trains with SAC, with their settings as given there.
+BRAX_SAC: dict[str, dict[str, float]] = {
+    task: dict(zip(BRAX_SAC_COLUMNS, row, strict=True))
+    for task, row in {
+        #            steps      envs batch upd  gamma  rs  lr    ep    replay     min
+        "hopper":   (6_553_600, 128, 512,  64, 0.997, 30, 6e-4, 1000, 1_048_576, 8192),
+        "walker2d": (7_864_320, 128, 128,  32, 0.997, 5,  6e-4, 1000, 1_048_576, 8192),
+    }.items()
+}  # fmt: skip
+"""brax's SAC settings per brax task, in brax's terms (converted by :func:`brax_sac_ddpg_config`)."""
+
+
+def brax_sac_ddpg_config(task: str, **row: float) -> DDPGConfig:
+    """The DDPG :class:`DDPGConfig` of ``BRAX_SAC[task]`` (entries updated by ``row``; ``KeyError`` naming
+    the tasks for an unknown one); TD3 adds ``train.td3.TD3_SETTINGS``.
+
+    brax's SAC steps ``num_envs`` envs once, then makes ``grad_updates_per_step`` updates on
+    mini-batches of ``batch_size``, from a memory of ``max_replay_size`` filled to ``min_replay_size``
+    first: here ``num_envs`` lanes, ``unroll_length`` 1, that many updates per iteration, the same
+    memory, ``learning_starts = min_replay_size``; γ, reward scaling and one learning rate as given;
+    brax's SAC networks (2 × 256) and τ 0.005, normalised observations; Gaussian exploration σ 0.1
+    (TD3's) where SAC samples its stochastic policy.
+    """
+    if task not in BRAX_SAC:
+        raise KeyError(f"no brax SAC settings for {task!r}; known: {', '.join(BRAX_SAC)}")
+    b = {**BRAX_SAC[task], **row}
+    lr = float(b["learning_rate"])
+    return DDPGConfig(
+        schedule="steps", total_steps=int(b["num_timesteps"]), num_envs=int(b["num_envs"]), unroll_length=1,
+        updates_per_iteration=int(b["grad_updates_per_step"]), batch_size=int(b["batch_size"]),
+        buffer_size=int(b["max_replay_size"]), learning_starts=int(b["min_replay_size"]),
+        gamma=float(b["discounting"]), reward_scale=float(b["reward_scaling"]), actor_lr=lr, critic_lr=lr, tau=0.005,
+        normalize_obs=True, actor_hidden=(256, 256), critic_hidden=(256, 256), noise="gaussian", noise_scale=(0.1,),
+        episode_length=int(b["episode_length"]),
     )  # fmt: skip
 
 

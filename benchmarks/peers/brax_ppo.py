@@ -1,4 +1,4 @@
-"""brax's own PPO (``brax.training.agents.ppo.train``) as a benchmark peer.
+"""brax's own PPO (``brax.training.agents.ppo.train``) and SAC (``sac.train``) as benchmark peers.
 
 COMPATIBILITY SHIM (benchmarks only): brax 0.14.2 calls ``jax.device_put_replicated``, which
 current JAX (>= 0.10) removed. :func:`install_shim` restores it for one-host use as "stack
@@ -98,15 +98,31 @@ def run_brax_ppo(
     }
 
 
-def train_published(env: Any, row: dict[str, float], num_timesteps: int, seed: int = 0) -> dict[str, Any]:
-    """brax's ``ppo.train`` with a task's published settings (``row``: brax's own argument names, a row of
-    ``train.presets.BRAX_PPO``) for ``num_timesteps`` env steps; brax's default networks.
+def train_published(
+    env: Any, row: dict[str, float], num_timesteps: int, seed: int = 0, algo: str = "ppo"
+) -> dict[str, Any]:
+    """brax's ``ppo.train`` (or, with ``algo='sac'``, ``sac.train``) with a task's published settings (``row``:
+    brax's own argument names, a row of ``train.presets.BRAX_PPO`` or ``BRAX_SAC``) for ``num_timesteps``
+    env steps; brax's default networks, normalised observations, 10 evaluations.
 
-    Returns ``final_return`` (brax's last ``eval/episode_reward``: deterministic policy, 128 episodes),
-    ``curve_steps`` / ``curve`` (every evaluation), ``wall_s`` (the whole call, compilation included)
-    and ``env_steps`` (brax's count at its last evaluation).
+    Returns ``final_return`` (brax's last ``eval/episode_reward``: 128 episodes; PPO's deterministic
+    policy, SAC's stochastic one, brax's default), ``curve_steps`` / ``curve`` (every evaluation),
+    ``wall_s`` (the whole call, compilation included) and ``env_steps`` (brax's count at its last evaluation).
     """
-    from brax.training.agents.ppo import train as ppo
+    if algo == "ppo":
+        from brax.training.agents.ppo import train as trainer
+
+        names = ("num_envs", "batch_size", "num_minibatches", "unroll_length", "num_updates_per_batch",
+                 "episode_length")  # fmt: skip
+        extra = {"entropy_cost": float(row["entropy_cost"])}
+    elif algo == "sac":
+        from brax.training.agents.sac import train as trainer
+
+        names = ("num_envs", "batch_size", "grad_updates_per_step", "episode_length", "max_replay_size",
+                 "min_replay_size")  # fmt: skip
+        extra = {}
+    else:
+        raise ValueError(f"algo={algo!r}: expected 'ppo' or 'sac'")
 
     install_shim()
     evals: list[tuple[int, float]] = []
@@ -115,21 +131,20 @@ def train_published(env: Any, row: dict[str, float], num_timesteps: int, seed: i
         if "eval/episode_reward" in metrics:
             evals.append((int(step), float(metrics["eval/episode_reward"])))
 
-    names = ("num_envs", "batch_size", "num_minibatches", "unroll_length", "num_updates_per_batch", "episode_length")
     t0 = time.perf_counter()
-    ppo.train(
+    trainer.train(
         environment=env,
         num_timesteps=int(num_timesteps),
         num_evals=10,
         normalize_observations=True,
         action_repeat=1,
         discounting=float(row["discounting"]),
-        entropy_cost=float(row["entropy_cost"]),
         reward_scaling=float(row["reward_scaling"]),
         learning_rate=float(row["learning_rate"]),
         max_devices_per_host=1,
         seed=seed,
         progress_fn=progress,
+        **extra,
         **{k: int(row[k]) for k in names},
     )
     wall = time.perf_counter() - t0

@@ -223,3 +223,18 @@ def test_brax_preset_converts_brax_settings_and_auto_picks_it(capsys):
     assert ppo_cli.parse(["--env", "brax:fast"]).preset in ("cpu", "fast")
     assert ddpg_cli.main(["--env", "arm7", "--preset", "brax"]) == 2
     assert "unknown preset 'brax'; valid presets: auto, thesis, cpu, fast" in capsys.readouterr().err
+
+
+def test_brax_sac_settings_convert_to_ddpg_by_hand():
+    """brax's hopper SAC row (128 envs stepped once, then 64 updates on 512 transitions, memory 2^20 filled to
+    8192 first, γ 0.997, reward × 30, lr 6e-4): the same schedule in DDPG's terms; --num-envs keeps the batch."""
+    c = presets.brax_sac_ddpg_config("hopper")
+    schedule = (c.schedule, c.num_envs, c.unroll_length, c.updates_per_iteration, c.batch_size)
+    assert schedule == ("steps", 128, 1, 64, 512) and c.total_steps == 6_553_600
+    assert (c.buffer_size, c.learning_starts, c.gamma, c.reward_scale) == (1_048_576, 8192, 0.997, 30.0)
+    assert c.actor_lr == c.critic_lr == 6e-4 and c.actor_hidden == c.critic_hidden == (256, 256) and c.normalize_obs
+    assert c.iterations == 6_553_600 // 128
+    row = brax_tasks.brax_row("walker2d", 16, "td3")
+    assert (row["num_envs"], row["batch_size"], row["grad_updates_per_step"]) == (16, 128, 32)
+    with pytest.raises(KeyError, match="hopper, walker2d"):
+        presets.brax_sac_ddpg_config("halfcheetah")
