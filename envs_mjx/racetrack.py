@@ -32,6 +32,11 @@ The widths are those of the thesis's Table 6.2; the test roads turn more (total 
 1.6–2.7 turns per lap against 1.06) and more tightly than the training road, as the thesis's
 unseen roads are more tortuous or narrower (§6.1.3).
 
+Generated training roads (:func:`random_road_spec`, ``racecar``'s ``road='random'``): the same
+generator with widths, control-point counts and jitters drawn per road from their own seeds, so
+that a policy can be trained on many layouts of the named roads' character and tested on the
+three test roads it has never driven.
+
 Geometry (all pure JAX, vectorised, no Python loops over points or rays):
 
 * :func:`point_at` — position, tangent and normal at arc length ``s`` (linear between samples).
