@@ -13,7 +13,8 @@ success, laps with a collision or off the road, overtakes, final rank, lap time 
 the road from above with our path coloured by speed and everyone's final place; our speed against
 the speed profile, our offset from the axis and our rank along the lap) and, when pillow is
 installed, a chase view of it as an animation (``racecar-<road>.gif``, every ``--gif-stride``-th
-step).
+step), and a picture of the four roads beside twelve of the generated training roads
+(``racecar-roads.png``).
 """
 
 from __future__ import annotations
@@ -226,6 +227,44 @@ def race_figures(env, rec: dict, out_dir: str, road: str, summary: str, gif_stri
     return paths
 
 
+def roads_figure(out_dir: str, generated: int = 12, family_seed: int = 0) -> str:
+    """Write ``racecar-roads.png``: the four named roads and the first ``generated`` roads of the
+    generated training family (``road='random'``'s bank after 'train'), each from above with its
+    width, lap length and smallest radius.  Returns the path."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from envs_mjx import racetrack
+
+    roads = [(name, racetrack.make_road(name)) for name in racetrack.ROADS]
+    roads += [(f"generated {i}", racetrack.make_spec_road(racetrack.random_road_spec(i, family_seed)))
+              for i in range(1, generated + 1)]  # fmt: skip
+    cols = 4
+    fig, axes = plt.subplots((len(roads) + cols - 1) // cols, cols, figsize=(3.2 * cols, 3.2 * len(roads) / cols + 1))
+    for ax, (name, track) in zip(np.ravel(axes), roads, strict=False):
+        loop = lambda a: np.concatenate([a, a[:1]])  # noqa: E731
+        left, right = np.asarray(track.left), np.asarray(track.right)
+        ax.fill(*loop(right).T, color="0.8" if name in racetrack.ROADS else "0.9")
+        ax.fill(*loop(left).T, color="white")
+        ax.plot(*loop(left).T, "k", lw=0.5)
+        ax.plot(*loop(right).T, "k", lw=0.5)
+        radius = 1.0 / float(np.abs(np.asarray(track.curvature)).max())
+        title = f"{name}: {float(track.width):g} m, {float(track.length):.0f} m lap, r_min {radius:.0f} m"
+        ax.set_title(title, fontsize=8)
+        ax.set_aspect("equal")
+        ax.axis("off")
+    for ax in np.ravel(axes)[len(roads):]:
+        ax.axis("off")
+    os.makedirs(out_dir, exist_ok=True)
+    path = os.path.join(out_dir, "racecar-roads.png")
+    fig.savefig(path, dpi=100, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
 def run_racecar(args) -> None:
     """The ``--env racecar`` demo (module docstring)."""
     import numpy as np
@@ -257,6 +296,7 @@ def run_racecar(args) -> None:
         )
         for path in race_figures(env, rec, args.out, road, summary, args.gif_stride if args.gif else None):
             print(f"  wrote {path}")
+    print(f"wrote {roads_figure(args.out)}")
 
 
 def main(argv: list[str] | None = None) -> None:

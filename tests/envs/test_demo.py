@@ -19,3 +19,9 @@ def test_greedy_demo_writes_its_results_with_provenance(tmp_path):
     assert 1.0 < row["length"] < 50.0 and row["steps_per_s"] > 0
     md = open(path[:-5] + ".md").read()
     assert "| kinematic | 100.0% |" in md and got["command"] in md
+
+
+def test_roads_figure_draws_the_named_and_generated_roads(tmp_path):
+    path = demo.roads_figure(str(tmp_path), generated=2)
+    with open(path, "rb") as f:
+        assert f.read(8) == b"\x89PNG\r\n\x1a\n"
