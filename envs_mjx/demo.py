@@ -244,8 +244,8 @@ def roads_figure(out_dir: str, generated: int = 12, family_seed: int = 0) -> str
               for i in range(1, generated + 1)]  # fmt: skip
     cols = 4
     fig, axes = plt.subplots((len(roads) + cols - 1) // cols, cols, figsize=(3.2 * cols, 3.2 * len(roads) / cols + 1))
+    loop = lambda a: np.concatenate([a, a[:1]])  # noqa: E731
     for ax, (name, track) in zip(np.ravel(axes), roads, strict=False):
-        loop = lambda a: np.concatenate([a, a[:1]])  # noqa: E731
         left, right = np.asarray(track.left), np.asarray(track.right)
         ax.fill(*loop(right).T, color="0.8" if name in racetrack.ROADS else "0.9")
         ax.fill(*loop(left).T, color="white")

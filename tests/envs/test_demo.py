@@ -21,7 +21,7 @@ def test_greedy_demo_writes_its_results_with_provenance(tmp_path):
     assert "| kinematic | 100.0% |" in md and got["command"] in md
 
 
-def test_roads_figure_draws_the_named_and_generated_roads(tmp_path):
+def test_roads_figure_writes_a_png(tmp_path):
     path = demo.roads_figure(str(tmp_path), generated=2)
     with open(path, "rb") as f:
         assert f.read(8) == b"\x89PNG\r\n\x1a\n"
