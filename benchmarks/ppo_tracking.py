@@ -4,10 +4,11 @@
     python -m benchmarks.ppo_tracking --methods mlp --trajectories sine --set gamma=0.995 --label gamma0995
 
 Each (trajectory, method) trains ``--seeds`` agents of the ``--preset`` (``fast`` on a GPU),
-vmapped over their keys (the recurrent one: one compiled run per key), then runs every agent's
-test episode from ``t = 0`` (``envs_mjx.tracking.rollout``; a recurrent policy carries its LSTM
-state from the table's entry for step 0).  Metric: per axis, the sum over the test episode of
-|reference − real| (x, y in m, θ in rad), as the thesis's tables.  ``--set FIELD=VALUE``
+vmapped over their keys (``--seed-map``; the recurrent one on the CPU: one compiled run per
+key), then runs every agent's test episode from ``t = 0`` (``envs_mjx.tracking.rollout``; a
+recurrent policy carries its LSTM state from the table's entry for step 0).  Metric: per axis,
+the sum over the test episode of |reference − real| (x, y in m, θ in rad), as the thesis's
+tables.  ``--set FIELD=VALUE``
 overrides PPO hyper-parameters and ``--env-config KEY=VALUE`` unicycle settings (e.g.
 ``a_p=10``, ``observation=extended``; on top of the preset's, ``train.presets.ppo_env_overrides``)
 for every run; ``--label`` names the variant.
@@ -50,8 +51,7 @@ def run_case(trajectory: str, method: str, args: argparse.Namespace) -> dict[str
         return tracking.rollout(env, pol.step, None, pol.carry)
 
     keys = jax.random.split(jax.random.PRNGKey(args.seed), args.seeds)
-    # the recurrent trainer runs one seed after another (vmapping it stalled XLA:CPU, jax 0.10.2)
-    vmapped = config.policy == "mlp"
+    vmapped = seeds_vmapped(args.seed_map, config.policy)
     result, metrics, compile_s, train_s = tracking_report.train_seeds(make_train(config, env), test, keys, vmapped)
     return tracking_report.summarise(
         result, metrics, "reward",
@@ -64,16 +64,32 @@ def run_case(trajectory: str, method: str, args: argparse.Namespace) -> dict[str
     )  # fmt: skip
 
 
+def seeds_vmapped(seed_map: str, policy: str, backend: str | None = None) -> bool:
+    """Whether the seeds run as one vmapped program: ``seed_map`` ``'vmap'`` / ``'loop'``, or ``'auto'``:
+    vmapped, except the recurrent policy on the CPU backend (vmapping it stalled XLA:CPU, jax 0.10.2),
+    which runs one compiled program per seed."""
+    if seed_map != "auto":
+        return seed_map == "vmap"
+    return policy == "mlp" or (backend or jax.default_backend()) != "cpu"
+
+
 def to_markdown(result: dict[str, Any]) -> str:
     return tracking_report.to_markdown(
         result, f"PPO tracking on unicycle, `{result['preset']}` preset",
-        "Seeds vmapped in one program (lstm: one compiled program per seed).",
+        "Seeds vmapped in one program (`--seed-map auto`: the lstm on the CPU one compiled program per seed).",
     )
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     return tracking_report.cli("ppo_tracking", __doc__, ("trajectories", ["sine", "ellipse"]),
-                               (list(METHODS), list(METHODS)), run_case, to_markdown, argv)  # fmt: skip
+                               (list(METHODS), list(METHODS)), run_case, to_markdown, argv,
+                               extra_args=add_seed_map)  # fmt: skip
+
+
+def add_seed_map(p: argparse.ArgumentParser) -> None:
+    """``--seed-map auto|vmap|loop`` (:func:`seeds_vmapped`)."""
+    p.add_argument("--seed-map", default="auto", choices=("auto", "vmap", "loop"),
+                   help="seeds as one vmapped program or one program each (auto: vmap, except lstm on the CPU)")
 
 
 if __name__ == "__main__":

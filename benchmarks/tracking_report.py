@@ -183,10 +183,12 @@ def cli(
     run_case: Callable[[str, str, argparse.Namespace], dict],
     markdown: Callable[[dict], str],
     argv: Sequence[str] | None = None,
+    extra_args: Callable[[argparse.ArgumentParser], None] | None = None,
 ) -> dict[str, Any]:
     """The command line of a tracking benchmark: ``--<references[0]>`` (choices ``references[1]``,
-    all by default), ``--methods`` (choices ``methods[1]``, default ``methods[0]``) and
-    :func:`add_common_args`; runs every (reference, method) case with :func:`run_cases`."""
+    all by default), ``--methods`` (choices ``methods[1]``, default ``methods[0]``),
+    :func:`add_common_args` and the benchmark's own ``extra_args(parser)``; runs every (reference,
+    method) case with :func:`run_cases`."""
     from train.presets import resolve_preset
 
     flag, choices = references
@@ -194,6 +196,8 @@ def cli(
     p.add_argument(f"--{flag}", nargs="+", default=list(choices), choices=list(choices))
     p.add_argument("--methods", nargs="+", default=list(methods[0]), choices=list(methods[1]))
     add_common_args(p)
+    if extra_args is not None:
+        extra_args(p)
     argv = list(sys.argv[1:] if argv is None else argv)
     args = p.parse_args(argv)
     args.preset = resolve_preset(args.preset)

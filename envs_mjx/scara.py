@@ -25,6 +25,12 @@ Observation (Eq. 3.21, 10-dim), scaled to similar ranges::
 where ``z_mid``/``z_half`` are the middle and half-span of the reachable heights, ``s_e =
 obs_error_scale`` and ``e = p_ref − p`` (thesis §3.5.1).
 
+``observation="extended"`` appends the error to the *next* reference point, ``(p_ref,k+1 − p) /
+s_e`` (13-dim): the displacement this control step must produce.  Eq. 3.21 holds the current error
+but nothing of the reference's motion, and the end-effector position does not fix the reference's
+phase (the joints run at different frequencies), so a policy reading it can only react to an error
+once it has appeared — it lags the reference by about a step.
+
 Reward (Eq. 3.22): ``r = exp(−2 (e_x² + e_y² + e_z²))`` in metres (the 2 is ``reward_coef``);
 zero from the step that triggers early termination on.
 """
@@ -44,13 +50,17 @@ from mujoco import mjx
 
 from envs_mjx import tracking
 from envs_mjx.base import State, sanitize_action
-from envs_mjx.config import ConfigError, check_range, check_vector
+from envs_mjx.config import ConfigError, check_choice, check_range, check_vector
 from envs_mjx.trajectories import JointReference, joint_sinusoids
 
-__all__ = ["Scara", "ScaraConfig", "build_model", "forward_kinematics", "forward_velocity", "scara_reward"]
+__all__ = [
+    "OBSERVATIONS", "Scara", "ScaraConfig", "build_model", "forward_kinematics", "forward_velocity", "scara_reward",
+]  # fmt: skip
 
 ASSET = os.path.join(os.path.dirname(__file__), "assets", "scara.xml")
 JOINTS = ("theta1", "theta2", "d3")
+OBSERVATIONS = ("thesis", "extended")
+"""``thesis``: Eq. 3.21 (10-dim); ``extended``: plus the error to the next reference point (13-dim)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -91,6 +101,9 @@ class ScaraConfig:
     """The 2 of Eq. 3.22."""
     obs_error_scale: float = 0.05
     """Tracking errors are divided by this in the observation (m)."""
+    observation: str = "thesis"
+    """'thesis': the 10-dim vector of Eq. 3.21; 'extended': plus the error to the next reference
+    point, ``(p_ref,k+1 − p) / obs_error_scale`` (13-dim; module docstring)."""
     rsi: tuple[float, float] = (0.0, 1.0)
     """Default RSI window [start_lo, start_hi] (fractions of the reference)."""
     et_threshold: float = 0.1
@@ -99,6 +112,7 @@ class ScaraConfig:
     """Episode terminates when the counter exceeds this."""
 
     def validate(self) -> None:
+        check_choice("observation", self.observation, OBSERVATIONS)
         check_range("l1", self.l1, 0.0, lo_open=True)
         check_range("l2", self.l2, 0.0, lo_open=True)
         check_range("height", self.height, 0.0, lo_open=True)
@@ -188,7 +202,6 @@ class Scara(tracking.TrackingEnv):
 
     name = "scara"
     Config = ScaraConfig
-    observation_size = 10
     action_size = 3
     axis_names = ("x", "y", "z")
     wrap_axes = (False, False, False)
@@ -202,6 +215,10 @@ class Scara(tracking.TrackingEnv):
         self._xy_scale = cfg.l1 + cfg.l2
         self._z_mid = cfg.height - 0.5 * (cfg.joint_lo[2] + cfg.joint_hi[2])
         self._z_half = 0.5 * (cfg.joint_hi[2] - cfg.joint_lo[2])
+
+    @property
+    def observation_size(self) -> int:
+        return 13 if self.config.observation == "extended" else 10
 
     # ------------------------------------------------------------- reference
     def joint_reference(self, k: jax.Array) -> JointReference:
@@ -230,17 +247,19 @@ class Scara(tracking.TrackingEnv):
         return forward_kinematics(q, cfg.l1, cfg.l2, cfg.height)
 
     # ---------------------------------------------------------------- helpers
-    def _obs(self, q: jax.Array, ee: jax.Array, err: jax.Array) -> jax.Array:
-        """Eq. 3.21 with the scaling of the module docstring, ``[10]``."""
+    def _obs(self, q: jax.Array, ee: jax.Array, err: jax.Array, k: jax.Array) -> jax.Array:
+        """Eq. 3.21 with the scaling of the module docstring, ``[10]``; ``extended``: plus
+        ``(p_ref(k + 1) − ee) / s_e``, ``[13]`` (``k`` the step ``err`` is scored against)."""
         s = self.config.obs_error_scale
-        return jnp.concatenate(
-            [
-                jnp.stack([jnp.sin(q[0]), jnp.cos(q[0]), jnp.sin(q[1]), jnp.cos(q[1])]),
-                ee[:2] / self._xy_scale,
-                ((ee[2] - self._z_mid) / self._z_half)[None],
-                err / s,
-            ]
-        )
+        parts = [
+            jnp.stack([jnp.sin(q[0]), jnp.cos(q[0]), jnp.sin(q[1]), jnp.cos(q[1])]),
+            ee[:2] / self._xy_scale,
+            ((ee[2] - self._z_mid) / self._z_half)[None],
+            err / s,
+        ]
+        if self.config.observation == "extended":
+            parts.append((self.reference(k + 1)[0] - ee) / s)
+        return jnp.concatenate(parts)
 
     def _metrics(self, r_track, err, et_count, terminated, invalid) -> dict[str, jax.Array]:
         a = jnp.abs(err)
@@ -267,7 +286,7 @@ class Scara(tracking.TrackingEnv):
         zero = jnp.zeros((), jnp.float32)
         metrics = self._metrics(zero, err, zero, zero, zero)
         return self._first_state(
-            data, self._obs(r.q, ee, err), metrics, p, k0, q=r.q, ee_pos=ee, ref_pos=ref_pos, ref_vel=ref_vel
+            data, self._obs(r.q, ee, err, k0), metrics, p, k0, q=r.q, ee_pos=ee, ref_pos=ref_pos, ref_vel=ref_vel
         )
 
     def step(self, state: State, action: jax.Array) -> State:
@@ -287,6 +306,6 @@ class Scara(tracking.TrackingEnv):
         r_track = scara_reward(err, cfg.reward_coef)
         reward, done, counters = self._end_of_step(state, k, jnp.linalg.norm(err), r_track)
         metrics = self._metrics(r_track, err, counters["et_count"], counters["terminated"], invalid)
-        obs = self._obs(q, ee, err)
+        obs = self._obs(q, ee, err, k)
         info = dict(q=q, ee_pos=ee, ref_pos=ref_pos, ref_vel=ref_vel, **counters)
         return self._next_state(state, data, obs, reward, done, metrics, k, **info)

@@ -124,6 +124,27 @@ def test_reference_increments_track_the_reference(scara):
     assert float(jnp.max(jnp.abs(acts))) < 1.0  # the reference is reachable with |a| <= 1
 
 
+def test_extended_observation_is_the_error_to_the_next_reference_point():
+    """``observation="extended"``: the thesis's 10 elements unchanged, then ``(p_ref(k+1) − p) / s_e``
+    with ``p_ref`` from Eq. 3.15 of the joint reference, at reset and after a step."""
+    thesis, extended = Scara(), Scara(observation="extended")
+    assert (thesis.observation_size, extended.observation_size) == (10, 13)
+    key, params = jax.random.PRNGKey(3), {"start_lo": 0.3, "start_hi": 0.3}
+    states = [env.reset(key, params) for env in (thesis, extended)]
+    action = jnp.array([0.7, -0.4, 0.9])
+    states += [env.step(s, action) for env, s in zip((thesis, extended), states, strict=True)]
+    for plain, ext in ((states[0], states[1]), (states[2], states[3])):
+        assert ext.obs.shape == (13,)
+        np.testing.assert_allclose(ext.obs[:10], plain.obs, atol=1e-6)
+        k = int(ext.info["k"])
+        nxt = _eq_3_15(np.asarray(extended.joint_reference(k + 1).q, np.float64), 1.0, 0.8, 1.0)
+        expect = (nxt - np.asarray(ext.info["ee_pos"], np.float64)) / extended.config.obs_error_scale
+        np.testing.assert_allclose(ext.obs[10:], expect, rtol=1e-4, atol=1e-4)
+        assert np.linalg.norm(expect) > 0.1  # the reference moves: not the current error again
+    with pytest.raises(ConfigError, match="observation='full'.*'thesis', 'extended'"):
+        Scara(observation="full")
+
+
 def test_config_errors_and_registry():
     env = envs_mjx.make("scara", dt=0.05, n_substeps=10)
     assert env.max_steps == 314 and env.mj_model.opt.timestep == pytest.approx(0.005)
