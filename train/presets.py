@@ -41,6 +41,7 @@ __all__ = [
     "ppo_env_overrides",
     "ddpg_env_overrides",
     "RACING_ENV",
+    "UNICYCLE_A_P",
     "lstm_variant",
     "ppo_preset",
     "resolve_preset",
@@ -203,18 +204,26 @@ def ppo_env_overrides(name: str, env_name: str) -> dict:
     the one that is fast on a CPU: MJX's ``pd`` physics of the 7-link chain compiles and runs
     slowly on CPUs (see the foundation benchmark). ``fast`` keeps the env's default (``pd``).
 
-    ``unicycle`` under ``cpu`` and ``fast`` trains with a sharper position term, ``a_p = 100``
-    instead of Eq. 3.23's 1: with a_p = 1 a lag of a few centimetres costs almost nothing and the
-    robot drifted along its path (H100, sine, 3 seeds, 12 M steps: x sums 23.5 ± 10.7 at a_p = 1,
-    6.3 at 10, 4.4 at 30, 3.9 at 100; at 30 M steps and a_p = 100: 0.63 / 0.95 / 0.29 for x / y /
-    θ; ``benchmarks/results/gpu-nvidia_h100_80gb_hbm3-ppo_tracking.md``). ``thesis`` keeps a_p = 1.
+    ``unicycle`` trains with a sharper position term than Eq. 3.23's ``a_p = 1``: ``a_p = 100``
+    under ``cpu``, ``300`` under ``fast``.  With a_p = 1 a lag of a few centimetres costs almost
+    nothing and the robot drifted along its path (H100, sine, 3 seeds, 12 M steps: x sums 23.5 ±
+    10.7 at a_p = 1, 6.3 at 10, 4.4 at 30, 3.9 at 100; ``gpu-nvidia_h100_80gb_hbm3-ppo_tracking.md``).
+    At 30 M steps, 3 seeds, x / y / θ sums on the sine: 0.63 / 0.95 / 0.29 at a_p = 100, 0.32 /
+    0.41 / 0.18 at 300; ellipse 0.47 / 0.29 / 0.55 and 0.33 / 0.24 / 0.36
+    (``gpu-nvidia_h100_80gb_hbm3-tracking_sharper_rewards.md``).  ``cpu`` keeps 100 (300 not
+    measured there).  ``thesis`` keeps a_p = 1.
     """
     name = resolve_preset(name)
     if _family(env_name) == "arm" and name in ("thesis", "cpu"):
         return {"mode": "kinematic"}
     if env_name.split(":")[-1] == "unicycle" and name in ("cpu", "fast"):
-        return {"a_p": 100.0}
+        return {"a_p": UNICYCLE_A_P[name]}
     return {}
+
+
+UNICYCLE_A_P = {"cpu": 100.0, "fast": 300.0}
+"""Eq. 3.23's ``a_p`` of the unicycle under the ``cpu`` and ``fast`` presets (every algorithm; see
+:func:`ppo_env_overrides` and :func:`ddpg_env_overrides` for the measurements)."""
 
 
 def ppo_preset(
@@ -242,11 +251,15 @@ def lstm_variant(config: PPOConfig, name: str, family: str) -> PPOConfig:
     """``config`` with the recurrent networks of thesis §5.7: FC 256 → LSTM 256 → FC for actor and
     critic, sequences of 10 steps, each sequence in two of the 8 updates per batch (``thesis``: K = 4
     lanes × 40 steps, mini-batches of one sequence per lane); tracking envs: the curriculum ends with
-    200 of 3000 episodes from ``t = 0``."""
+    200 of 3000 episodes from ``t = 0``; under ``fast`` twice the feed-forward budget: on the
+    unicycle (a_p = 300, H100, 3 seeds) the x / y / θ sums went from 2.74 / 2.66 / 0.49 at 30 M steps
+    to 1.49 / 1.22 / 0.33 at 60 M on the sine, and from 1.28 / 0.99 / 0.62 to 0.46 / 0.44 / 0.29 on
+    the ellipse (``benchmarks/results/gpu-nvidia_h100_80gb_hbm3-tracking_sharper_rewards.md``)."""
     lanes, unroll, minibatch = {"thesis": (4, 40, 40), "cpu": (32, 40, 320), "fast": (4096, 20, 40960)}[name]
     config = config.replace(
         policy="lstm", actor_hidden=(256,), critic_hidden=(256,), lstm_size=256, seq_length=10, batch_norm=False,
         num_envs=lanes, unroll_length=unroll, minibatch_size=minibatch, actor_updates=8, critic_updates=8,
+        total_steps=config.total_steps * (2 if name == "fast" and family == "tracking" else 1),
     )  # fmt: skip
     if family == "tracking":
         config = config.replace(schedule=tracking_schedule(2 / 3, 0.8, 14 / 15))
@@ -420,19 +433,25 @@ bank 11.0 / 15.3 / 11.7 / 15.3; with the offsets and the end at a collision 16.0
 def ddpg_env_overrides(name: str, env_name: str) -> dict:
     """Env settings a DDPG preset needs (the user's ``--env-config`` goes on top): a sharper reward.
 
-    ``unicycle`` under ``cpu`` and ``fast``: the sharper position term ``a_p = 100`` of
-    :func:`ppo_env_overrides`, for the same reason (CPU, sine, seed 0, ``cpu`` preset: x / y / θ
-    sums 7.75 / 5.75 / 2.22 at Eq. 3.23's a_p = 1, 1.43 / 1.13 / 0.83 at a_p = 100;
-    ``benchmarks/results/cpu-2core-ddpg_tracking.md``; H100, ``fast``, 3 seeds: 1.08 / 0.95 / 0.85).
-    ``racecar`` under ``cpu`` and ``fast``: :data:`RACING_ENV`.
-    ``scara`` under ``cpu`` and ``fast``: Eq. 3.22's coefficient 50 instead of 2 (H100, ``fast``,
-    3 seeds: x / y / z sums 4.26 / 4.38 / 3.26 at 2, 1.73 / 2.10 / 1.95 at 50;
-    ``benchmarks/results/gpu-nvidia_h100_80gb_hbm3-ddpg_tracking.md``).  ``thesis`` keeps Eq. 3.22-3.23.
+    ``unicycle``: the sharper position term of :func:`ppo_env_overrides` (:data:`UNICYCLE_A_P`), for
+    the same reason.  CPU, sine, seed 0, ``cpu`` preset: x / y / θ sums 7.75 / 5.75 / 2.22 at Eq.
+    3.23's a_p = 1, 1.43 / 1.13 / 0.83 at a_p = 100 (``cpu-2core-ddpg_tracking.md``).  H100, ``fast``,
+    3 seeds, ``ddpg``: sine 1.08 / 0.95 / 0.85 at 100, 0.60 / 0.71 / 0.57 at 300; ellipse 1.79 / 2.68
+    / 1.96 and 0.63 / 0.72 / 0.76.  Distributed on the sine: 0.98 / 1.30 / 0.83 at 100, 0.59 / 0.73 /
+    0.51 at 300, 0.45 / 0.40 / 0.31 at 1000 (1000 not measured on the ellipse, so not the preset).
+    ``scara``: ``cpu`` Eq. 3.22's coefficient 50 instead of 2; ``fast`` 1000 and the ``extended``
+    observation (the error to the next reference point).  H100, ``fast``, 3 seeds, x / y / z sums:
+    ``ddpg`` 4.26 / 4.38 / 3.26 at 2, 1.73 / 2.10 / 1.95 at 50, 1.29 / 1.10 / 1.51 at 50 extended,
+    0.80 / 0.85 / 0.87 at 300 extended; distributed 1.02 / 1.22 / 1.53 at 50, 0.57 / 0.47 / 0.55 at
+    300 extended, 0.22 / 0.21 / 0.19 at 1000 extended (``ddpg`` at 1000 not measured).
+    Files: ``gpu-nvidia_h100_80gb_hbm3-ddpg_tracking.md``, ``…-tracking_sharper_rewards.md``.
+    ``racecar`` under ``cpu`` and ``fast``: :data:`RACING_ENV`.  ``thesis`` keeps Eq. 3.22-3.23.
     """
-    if resolve_preset(name) not in ("cpu", "fast"):
+    name = resolve_preset(name)
+    if name not in ("cpu", "fast"):
         return {}
-    sharper = {"unicycle": {"a_p": 100.0}, "scara": {"reward_coef": 50.0},
-               "racecar": RACING_ENV}  # fmt: skip
+    scara = {"cpu": {"reward_coef": 50.0}, "fast": {"reward_coef": 1000.0, "observation": "extended"}}[name]
+    sharper = {"unicycle": {"a_p": UNICYCLE_A_P[name]}, "scara": scara, "racecar": RACING_ENV}
     return sharper.get(env_name.split(":")[-1], {})
 
 

@@ -45,14 +45,19 @@ def test_td3_run_writes_its_directory_and_resumes(tmp_path):
 
 @pytest.mark.parametrize("cli", [ddpg_cli, td3_cli], ids=["ddpg", "td3"])
 def test_tracking_presets_sharpen_the_reward_and_env_config_wins(cli):
-    """cpu/fast build the unicycle with a_p = 100 and the SCARA with Eq. 3.22's coefficient 50 (the
-    measured presets); thesis keeps Eq. 3.22-3.23; ``--env-config`` overrides the preset."""
+    """cpu builds the unicycle with a_p = 100 and the SCARA with Eq. 3.22's coefficient 50, fast with
+    a_p = 300 and the coefficient 1000 on the extended SCARA observation (the measured presets);
+    thesis keeps Eq. 3.21-3.23; ``--env-config`` overrides the preset."""
     env_of = lambda *argv: cli.CLI.build(cli.parse(list(argv)))[0]  # noqa: E731
     assert env_of("--env", "unicycle", "--preset", "cpu").config.a_p == 100.0
     assert env_of("--env", "unicycle", "--preset", "thesis").config.a_p == 1.0
     assert env_of("--env", "unicycle", "--preset", "cpu", "--env-config", "a_p=5").config.a_p == 5.0
     assert env_of("--env", "scara", "--preset", "cpu").config.reward_coef == 50.0
     assert env_of("--env", "scara", "--preset", "thesis").config.reward_coef == 2.0
+    assert env_of("--env", "unicycle", "--preset", "fast").config.a_p == 300.0
+    fast = env_of("--env", "scara", "--preset", "fast")
+    assert (fast.config.reward_coef, fast.config.observation, fast.observation_size) == (1000.0, "extended", 13)
+    assert env_of("--env", "scara", "--preset", "thesis").config.observation == "thesis"
 
 
 def test_racing_presets_imitate_first():
