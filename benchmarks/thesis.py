@@ -35,8 +35,9 @@ instead of 5 cm, ``envs_mjx.arm7.Arm7Precise``), where the methods separate: a r
 Seeds run one after another in this process (each a command-line run), or with ``--jobs N`` up to
 ``N`` seeds of a row at once, each a ``python -m train.<algo>`` process of its own (output in
 ``<runs>/<table>/<row>/seed<k>.log``; on a GPU each process gets 1/N of its memory): the compiles,
-which take most of a short row's time, then overlap.  Vmapped seeds for the tracking rows:
-``benchmarks.ppo_tracking`` / ``benchmarks.ddpg_tracking``.
+which take most of a short row's time, then overlap.  ``--together`` runs a row's seeds as one run
+(the command line's ``--seeds N``: one program vmapped over the seeds on a GPU, one compiled program
+looped over them on the CPU), its seeds in ``<runs>/<table>/<row>/seeds0-1-2/<run>/seed<k>/``.
 """
 
 from __future__ import annotations
@@ -269,6 +270,42 @@ def run_seeds_apart(row: Row, seeds: Sequence[int], args: argparse.Namespace) ->
     return [results[s] for s in seeds]
 
 
+def run_seeds_together(row: Row, seeds: Sequence[int], args: argparse.Namespace) -> list[dict[str, Any]]:
+    """Run (or continue, or skip) the ``seeds`` of ``row`` as one run, ``--seeds N`` of the algorithm's
+    command line (one program vmapped over the seeds on a GPU, the same compiled program once per seed
+    on the CPU; ``train.common.SeedProgram``); the same records as :func:`run_seed`, in the order of
+    ``seeds``, each with its ``run_dir`` the seed's folder ``<run>/seed<k>/``."""
+    out = os.path.join(args.runs, row.table, row.name, "seeds" + "-".join(map(str, seeds)))
+    found = sorted(glob.glob(os.path.join(out, "*", "config.json")))
+    run = os.path.dirname(found[-1]) if found else None
+    evals = [os.path.join(run, f"seed{k}", "eval.json") for k in seeds] if run else []
+    if run and all(os.path.exists(e) for e in evals):
+        return [{**json.load(open(e)), "run_dir": os.path.dirname(e), "skipped": True} for e in evals]
+    if run:
+        argv = ["--resume", run]
+    else:
+        argv = [*command(row, args.preset, seeds[0], args.smoke), "--seeds", str(len(seeds)), "--out", out]
+    main = importlib.import_module(f"train.{row.algo}").main
+    t0 = time.perf_counter()
+    with contextlib.redirect_stdout(io.StringIO()) if args.quiet else contextlib.nullcontext():
+        try:
+            code = main(argv)
+        except SystemExit as e:  # a command line that does not parse
+            code = e.code
+    wall = time.perf_counter() - t0
+    found = sorted(glob.glob(os.path.join(out, "*", "config.json")))
+    run = os.path.dirname(found[-1]) if found else None
+    records = []
+    for k in seeds:
+        seed_dir = os.path.join(run, f"seed{k}") if run else None
+        ev = os.path.join(seed_dir, "eval.json") if seed_dir else ""
+        if code != 0 or not os.path.exists(ev):
+            records.append({"error": f"exit code {code}", "run_dir": seed_dir, "wall_s": wall})
+        else:
+            records.append({**json.load(open(ev)), "run_dir": seed_dir, "process_s": wall})
+    return records
+
+
 def axis_keys(ev: dict) -> tuple[str, str, str]:
     return ("x", "y", "z") if "z" in ev else ("x", "y", "theta")
 
@@ -483,6 +520,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--jobs", type=int, default=1,
                    help="seeds of a row run at once, each in its own process (default 1: one after another, "
                    "in this process)")  # fmt: skip
+    p.add_argument("--together", action="store_true",
+                   help="a row's seeds as one run (--seeds N of its command line: vmapped on a GPU, one compiled "
+                   "program looped over the seeds on the CPU)")  # fmt: skip
     p.add_argument("--list", action="store_true", help="print the rows and their commands, run nothing")
     p.add_argument("--commit", default="", help="commit to record (default: git's HEAD)")
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -510,7 +550,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     if args.jobs < 1:
         raise SystemExit(f"error: --jobs {args.jobs} is out of range; allowed >= 1")
     seeds = list(range(args.seeds))
-    jobs = [(r, seeds[i : i + args.jobs]) for r in rows if r.algo for i in range(0, len(seeds), args.jobs)]
+    size = len(seeds) if args.together else args.jobs
+    jobs = [(r, seeds[i : i + size]) for r in rows if r.algo for i in range(0, len(seeds), size)]
     t_start, ran, spent = time.perf_counter(), 0, 0.0
     by_row: dict[str, list[dict]] = {r.id: [] for r in rows}
     for i, (row, group) in enumerate(jobs):
@@ -518,7 +559,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         which = f"seed {group[0]}" if len(group) == 1 else f"seeds {group[0]}-{group[-1]}"
         console.print(f"[bold][{i + 1}/{len(jobs)}][/bold] {row.id} {which} — {row.label}{eta}")
         t0 = time.perf_counter()
-        got_all = run_seeds_apart(row, group, args) if args.jobs > 1 else [run_seed(row, group[0], args)]
+        if args.together:
+            got_all = run_seeds_together(row, group, args)
+        else:
+            got_all = run_seeds_apart(row, group, args) if args.jobs > 1 else [run_seed(row, group[0], args)]
         if not all(got.get("skipped") for got in got_all):
             ran, spent = ran + 1, spent + time.perf_counter() - t0
         for seed, got in zip(group, got_all, strict=True):

@@ -55,6 +55,16 @@ def test_table_3_1_smoke_report_resume_and_missing_rows(tmp_path, monkeypatch):
     numbers = [k for k in here if k.startswith(("success", "mean_", "closest_")) or k in ("env_steps", "episodes")]
     assert len(numbers) >= 8 and {k: got[k] for k in numbers} == {k: here[k] for k in numbers}
 
+    # --together: a row's seeds as one run (the CPU loops one compiled program over them); its seed 0
+    # evaluates exactly as seed 0 run alone, and a rerun skips both seeds
+    together = [*argv[:-4], "--runs", str(tmp_path / "together"), "--out", out, "--rows", "3.1/sparse-future2",
+                "--seeds", "2", "--together"]  # fmt: skip
+    both = thesis.main(together)["rows"][0]["seeds"]
+    assert [os.path.basename(s["run_dir"]) for s in both] == ["seed0", "seed1"] and [s["seed"] for s in both] == [0, 1]
+    assert {k: both[0][k] for k in numbers} == {k: here[k] for k in numbers}
+    assert both[0]["closest_distance_median"] != both[1]["closest_distance_median"]  # two seeds, not one twice
+    assert all(s.get("skipped") for s in thesis.main(together)["rows"][0]["seeds"])
+
     # a row whose algorithm does not exist is reported as missing, never run
     absent = thesis.Row("3.1", "absent", "an algorithm not built", None, (), 50, "arm", missing="not built")
     monkeypatch.setattr(thesis, "ROWS", (*thesis.ROWS, absent))

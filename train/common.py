@@ -55,6 +55,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import json
 import math
 import os
@@ -65,6 +66,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import tyro
 from brax.envs.base import Env
@@ -127,6 +129,13 @@ class RunSettings:
 
     seed: int = 0
     """Random seed of the run (training); evaluation uses a separate stream derived from it."""
+    seeds: int = 1
+    """Train this many seeds (seed, seed + 1, …) in one run on one device; each writes its metrics,
+    figures and ``eval.json`` to ``<run dir>/seed<k>/`` as the run of ``--seed k`` would. 1: one run,
+    written to the run directory itself."""
+    seed_map: str = "auto"
+    """With --seeds > 1: vmap (one program over the seeds), loop (the same compiled program once per
+    seed each chunk) or auto (loop on the CPU, where XLA:CPU hangs on some vmapped-seed programs; else vmap)."""
     out: str = "runs"
     """Parent folder of the run directory runs/<algo>-<env>-<time>/."""
     checkpoint_every: int = 10
@@ -366,8 +375,9 @@ def compile_evaluation_async(
     return future
 
 
-def _compiled_episodes(future: Future | None, state: Any) -> Callable[[jax.Array], Any] | None:
-    """The background-compiled evaluation bound to ``state``; None if it failed (then compiled in line)."""
+def _compiled_episodes(future: Future | None) -> Callable[..., Any] | None:
+    """The background-compiled evaluation, ``(key, state=…) -> episodes``; None if it failed (then
+    compiled in line)."""
     if future is None:
         return None
     try:
@@ -375,7 +385,7 @@ def _compiled_episodes(future: Future | None, state: Any) -> Callable[[jax.Array
     except Exception as e:  # compilation is retried in line by ``evaluate``
         print(f"background compilation of the evaluation failed ({type(e).__name__}: {e}); compiling now", flush=True)
         return None
-    return lambda k: compiled(k, state)
+    return lambda k, state: compiled(k, state)
 
 
 def _print_table(title: str, rows: dict[str, Any]) -> None:
@@ -446,7 +456,11 @@ def run(spec: RunSpec) -> dict[str, Any]:
     _say(f"run directory: {run_dir}")
 
     t0 = time.perf_counter()
-    state = jax.jit(trainer.init)(jax.random.PRNGKey(spec.seed))
+    seeds = [spec.seed + i for i in range(spec.seeds)]
+    several = len(seeds) > 1
+    program = SeedProgram.of(trainer, len(seeds), spec.seed_map)
+    state = program.init(seeds)
+    seed_dirs = [os.path.join(run_dir, f"seed{k}") for k in seeds] if several else [run_dir]
     ckpt = Checkpointer(os.path.join(run_dir, "checkpoints"))
     chunk, wall_before = 0, 0.0
     if resuming:
@@ -458,17 +472,22 @@ def run(spec: RunSpec) -> dict[str, Any]:
             chunk, wall_before = int(record["chunk"]), float(record.get("wall_s", 0.0))
             _say(f"resumed at chunk {chunk} ({chunk * trainer.env_steps_per_update} env steps)")
     steps_per = trainer.env_steps_per_update
-    logger = MetricsLogger(run_dir, keep_until_step=chunk * steps_per if resuming else None) if main else None
-    update = jax.jit(trainer.update)
+    loggers = []
+    if main:
+        for d in seed_dirs:
+            os.makedirs(d, exist_ok=True)
+            loggers.append(MetricsLogger(d, keep_until_step=chunk * steps_per if resuming else None))
     total_steps = trainer.num_updates * steps_per
     stop_chunk = trainer.num_updates
     if spec.stop_after_steps > 0:
         stop_chunk = min(stop_chunk, max(chunk + 1, math.ceil(spec.stop_after_steps / steps_per)))
     show = main and (use_progress_bar() if spec.progress is None else spec.progress)
     bar = _Progress(show, total_steps, chunk * steps_per)
-    eval_key = jax.random.fold_in(jax.random.PRNGKey(spec.seed), EVAL_KEY_OFFSET)
+    eval_keys = [jax.random.fold_in(jax.random.PRNGKey(k), EVAL_KEY_OFFSET) for k in seeds]
     will_evaluate = stop_chunk >= trainer.num_updates and chunk < stop_chunk
-    eval_future = compile_evaluation_async(spec, eval_key, _local_view(state)) if will_evaluate else None
+    eval_future = (
+        compile_evaluation_async(spec, eval_keys[0], program.view(_local_view(state), 0)) if will_evaluate else None
+    )
 
     def record(c: int, wall: float) -> dict[str, Any]:
         return {"chunk": c, "env_steps": c * steps_per, "wall_s": wall}
@@ -478,31 +497,32 @@ def run(spec: RunSpec) -> dict[str, Any]:
     try:
         while chunk < stop_chunk:
             t_chunk = time.perf_counter()
-            new_state, metrics = update(state)
-            metrics = {k: float(v) for k, v in _to_host(metrics).items()}
+            new_state, metrics = program.update(state)
+            per_seed = program.per_seed(_to_host(metrics))
             dt = time.perf_counter() - t_chunk
             if compile_s is None:
                 compile_s = dt
-            bad = [k for k, v in metrics.items() if "loss" in k and not math.isfinite(v)]
+            bad = [(k, i) for i, m in enumerate(per_seed) for k, v in m.items() if "loss" in k and not math.isfinite(v)]
             if bad:
                 if last_saved != chunk:
                     ckpt.save(chunk, state, record(chunk, wall_before + time.perf_counter() - t0))
+                name, i = bad[0]
                 raise NonFiniteLossError(
-                    f"{bad[0]} is {metrics[bad[0]]} after env step {(chunk + 1) * steps_per} "
-                    f"(chunk {chunk + 1}); last good checkpoint: {ckpt.directory}/{chunk} "
-                    f"at env step {chunk * steps_per}"
-                )
+                    f"{name} is {per_seed[i][name]}" + (f" (seed {seeds[i]})" if several else "")
+                    + f" after env step {(chunk + 1) * steps_per} (chunk {chunk + 1}); last good checkpoint: "
+                    f"{ckpt.directory}/{chunk} at env step {chunk * steps_per}"
+                )  # fmt: skip
             state, chunk = new_state, chunk + 1
-            sps = steps_per / max(dt, 1e-9)
-            if logger is not None:
-                logger.write(chunk * steps_per, {**metrics, "steps_per_s": sps})
-            bar.update(chunk * steps_per, _progress_info(metrics, sps))
+            sps = steps_per * len(seeds) / max(dt, 1e-9)
+            for logger, m in zip(loggers, per_seed, strict=True):
+                logger.write(chunk * steps_per, {**m, "steps_per_s": sps})
+            bar.update(chunk * steps_per, _progress_info(per_seed[0], sps))
             if chunk % max(spec.checkpoint_every, 1) == 0 or chunk == stop_chunk:
                 ckpt.save(chunk, state, record(chunk, wall_before + time.perf_counter() - t0))
                 last_saved = chunk
     finally:
         bar.close()
-        if logger is not None:
+        for logger in loggers:
             logger.close()
     jax.block_until_ready(state)
     train_s = time.perf_counter() - t_loop
@@ -513,8 +533,8 @@ def run(spec: RunSpec) -> dict[str, Any]:
         "compile_s": compile_s,
         "train_s": train_s,
     }
-    if logger is not None:
-        plot_training_curves(read_csv(logger.path), run_dir)
+    for logger, d in zip(loggers, seed_dirs, strict=True):
+        plot_training_curves(read_csv(logger.path), d)
     if not result["finished"]:
         result["wall_s"] = wall_before + time.perf_counter() - t0
         _say(f"stopped at {result['env_steps']} env steps; continue with --resume {run_dir}")
@@ -522,25 +542,88 @@ def run(spec: RunSpec) -> dict[str, Any]:
         return result
     t_eval = time.perf_counter()
     local_state = _local_view(state)
-    summary = evaluate(
-        eval_key,
-        spec.env,
-        trainer.policy(local_state),
-        spec.eval_episodes,
-        run_dir if main else None,
-        spec.episode_length,
-        episodes_fn=_compiled_episodes(eval_future, local_state),
-        precision=spec.precision,
-    )
+    compiled = _compiled_episodes(eval_future)
+    summaries = []
+    for i, (key, d) in enumerate(zip(eval_keys, seed_dirs, strict=True)):
+        view = program.view(local_state, i)
+        summaries.append(evaluate(
+            key, spec.env, trainer.policy(view), spec.eval_episodes, d if main else None, spec.episode_length,
+            episodes_fn=None if compiled is None else functools.partial(compiled, state=view),
+            precision=spec.precision,
+        ))  # fmt: skip
     result["eval_s"] = time.perf_counter() - t_eval
     result["wall_s"] = wall_before + time.perf_counter() - t0
-    result["eval"] = summary
+    if several:
+        result["seeds"] = [
+            {"seed": k, "run_dir": d, "eval": e} for k, d, e in zip(seeds, seed_dirs, summaries, strict=True)
+        ]
+    else:
+        result["eval"] = summaries[0]
     if main:
-        _write_json(os.path.join(run_dir, "eval.json"), {**summary, **{k: v for k, v in result.items() if k != "eval"}})
-        title = f"{spec.algo} on {spec.env_name}: evaluation"
-        _print_table(title, {**summary, "env_steps": result["env_steps"], "wall_s": round(result["wall_s"], 1)})
+        shared = {k: v for k, v in result.items() if k not in ("eval", "seeds")}
+        for k, d, summary in zip(seeds, seed_dirs, summaries, strict=True):
+            _write_json(os.path.join(d, "eval.json"), {**summary, **shared, **({"seed": k} if several else {})})
+            title = f"{spec.algo} on {spec.env_name}" + (f", seed {k}" if several else "") + ": evaluation"
+            _print_table(title, {**summary, "env_steps": result["env_steps"], "wall_s": round(result["wall_s"], 1)})
     ckpt.close()
     return result
+
+
+SEED_MAPS = ("auto", "vmap", "loop")
+"""How ``--seeds`` > 1 runs (:class:`SeedProgram`)."""
+
+
+def resolve_seed_map(seed_map: str) -> str:
+    """``'vmap'`` or ``'loop'``: ``seed_map``, with ``'auto'`` → ``'loop'`` on the CPU backend, else ``'vmap'``."""
+    if seed_map == "auto":
+        return "loop" if jax.default_backend() == "cpu" else "vmap"
+    return seed_map
+
+
+@dataclasses.dataclass(frozen=True)
+class SeedProgram:
+    """How the seeds of a run are trained: ``init(seeds) -> state``, ``update(state) -> (state,
+    metrics)`` (jitted), ``view(tree, i)`` (seed ``i``'s part of a state) and ``per_seed(host
+    metrics) -> [dict of floats]`` (one per seed).
+
+    One seed: the trainer's own functions.  ``vmap``: one program over a leading seed axis of every
+    leaf.  ``loop``: a tuple of the seeds' states, each chunk the same compiled ``update`` once per
+    seed (XLA:CPU of jax 0.10 hangs running some vmapped-seed programs, e.g. PPO on arm7).  ``auto``:
+    ``loop`` on the CPU backend, else ``vmap``.  Seed ``k``'s keys are those of a run with ``--seed k``
+    in every mode.
+    """
+
+    init: Callable[[Sequence[int]], Any]
+    update: Callable[[Any], tuple[Any, Any]]
+    view: Callable[[Any, int], Any]
+    per_seed: Callable[[Any], list[dict[str, float]]]
+
+    @staticmethod
+    def of(trainer: Trainer, n: int, seed_map: str = "auto") -> SeedProgram:
+        """The program of ``n`` seeds of ``trainer`` under ``seed_map`` (one of :data:`SEED_MAPS`)."""
+        if seed_map not in SEED_MAPS:
+            raise ValueError(f"--seed-map {seed_map!r} is not a seed map; valid: {', '.join(SEED_MAPS)}")
+        floats = lambda m: {k: float(v) for k, v in m.items()}  # noqa: E731
+        update = jax.jit(trainer.update)
+        if n == 1:
+            init = lambda seeds: jax.jit(trainer.init)(jax.random.PRNGKey(seeds[0]))  # noqa: E731
+            return SeedProgram(init, update, lambda tree, i: tree, lambda m: [floats(m)])
+        if resolve_seed_map(seed_map) == "loop":
+            init_one = jax.jit(trainer.init)
+
+            def update_all(states: tuple) -> tuple[tuple, tuple]:
+                out = [update(s) for s in states]
+                return tuple(o[0] for o in out), tuple(o[1] for o in out)
+
+            return SeedProgram(lambda seeds: tuple(init_one(jax.random.PRNGKey(k)) for k in seeds), update_all,
+                               lambda tree, i: tree[i], lambda ms: [floats(m) for m in ms])  # fmt: skip
+
+        def init_all(seeds: Sequence[int]) -> Any:
+            return jax.jit(jax.vmap(trainer.init))(jnp.stack([jax.random.PRNGKey(k) for k in seeds]))
+
+        return SeedProgram(init_all, jax.jit(jax.vmap(trainer.update)),
+                           lambda tree, i: jax.tree.map(lambda x: x[i], tree),
+                           lambda m: [{k: float(v[i]) for k, v in m.items()} for i in range(n)])  # fmt: skip
 
 
 # ---- the command line ---------------------------------------------------------------------------
@@ -765,6 +848,13 @@ class AlgorithmCLI:
             cfg = cfg.replace(episode_length=episode_length(env))
         cfg.validate()
         mesh = lane_mesh(args.devices)
+        if args.seeds < 1:
+            raise ValueError(f"--seeds {args.seeds} is out of range; allowed >= 1")
+        if args.seed_map not in SEED_MAPS:
+            raise ValueError(f"--seed-map {args.seed_map!r} is not a seed map; valid: {', '.join(SEED_MAPS)}")
+        if args.seeds > 1 and mesh.devices.size > 1 and resolve_seed_map(args.seed_map) == "vmap":
+            raise ValueError(f"--seeds {args.seeds} vmapped runs on one device; add --devices 1 (the lanes would "
+                             f"be spread over {mesh.devices.size}) or --seed-map loop")  # fmt: skip
         trainer, per_chunk = self.make_trainer(args, env, cfg, mesh)
         options = dataclasses.asdict(args)
         config = {
@@ -827,5 +917,6 @@ def cli_main(cli: AlgorithmCLI, argv: Sequence[str] | None = None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 1
     if cli.after is not None and is_main_process():
-        cli.after(result)
+        for one in result.get("seeds", [result]):
+            cli.after({**result, **one})
     return 0 if result.get("finished") or args.stop_after_steps else 1

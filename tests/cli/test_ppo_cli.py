@@ -108,6 +108,59 @@ def test_resume_equals_uninterrupted(tmp_path):
     assert len(rows_b) == 5  # header + 4 chunks, none repeated after the resume
 
 
+SEEDS_SCRIPT = """
+import json, sys
+from train import ppo
+out, tiny = sys.argv[1], json.loads(sys.argv[2])
+args = ["--env", "brax:fast", "--episode-length", "16", "--total-steps", "256", "--chunks", "4",
+        "--checkpoint-every", "1", "--eval-episodes", "2", *tiny]
+assert ppo.main([*args, "--seed", "8", "--out", out + "/single"]) == 0
+assert ppo.main([*args, "--seed", "7", "--seeds", "2", "--seed-map", "loop", "--out", out + "/loop"]) == 0
+assert ppo.main([*args, "--seed", "7", "--seeds", "2", "--seed-map", "vmap", "--out", out + "/vmap",
+                 "--stop-after-steps", "128"]) == 0                             # vmapped, stopped half-way
+import glob
+run, = glob.glob(out + "/vmap/*")
+assert ppo.main(["--resume", run]) == 0                                          # and continued
+print("OK")
+"""
+
+
+def test_seeds_train_together_each_as_its_own_seed_would(tmp_path):
+    """``--seeds 2 --seed 7``: seeds 7 and 8 in one run, each with its own ``seed<k>/`` (metrics, eval.json);
+    seed 8 of the loop equals a ``--seed 8`` run to the bit, of the vmapped run (stopped half-way and
+    resumed) to float rounding, and seeds 7 and 8 learn different states."""
+    proc = subprocess.run([sys.executable, "-c", SEEDS_SCRIPT, str(tmp_path), json.dumps(TINY)], cwd=ROOT,
+                          env=cpu_env(), capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert proc.returncode == 0 and "OK" in proc.stdout, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert "resumed at chunk 2 (128 env steps)" in proc.stdout
+    (single,) = glob.glob(str(tmp_path / "single" / "*"))
+    ref, _ = final_checkpoint(single)
+    for mode in ("loop", "vmap"):
+        (run,) = glob.glob(str(tmp_path / mode / "*"))
+        for seed in (7, 8):
+            ev = json.load(open(os.path.join(run, f"seed{seed}", "eval.json")))
+            assert ev["seed"] == seed and ev["env_steps"] == 256 and ev["episodes"] == 2
+            rows = open(os.path.join(run, f"seed{seed}", "metrics.csv")).read().strip().splitlines()
+            assert len(rows) == 5  # header + 4 chunks (the vmapped run's resume repeats none)
+        assert not os.path.exists(os.path.join(run, "eval.json"))
+        state, record = final_checkpoint(run)
+        assert record["chunk"] == 4
+        if mode == "loop":  # a tuple of the seeds' states
+            seed7, seed8 = state[0], state[1]
+        else:  # one state with a leading seed axis
+            seed7, seed8 = jax.tree.map(lambda x: x[0], state), jax.tree.map(lambda x: x[1], state)
+        assert_same_learnt_state(seed8, ref, atol=None if mode == "loop" else 1e-5)
+        a7, a8 = (np.asarray(jax.tree.leaves(s["actor_params"])[0]) for s in (seed7, seed8))
+        assert np.abs(a7 - a8).max() > 1e-3  # the seeds differ
+
+
+def test_seeds_bad_input(capsys):
+    assert ppo_cli.main(["--env", "brax:fast", "--seeds", "0"]) == 2
+    assert "--seeds 0 is out of range; allowed >= 1" in capsys.readouterr().err
+    assert ppo_cli.main(["--env", "brax:fast", "--seeds", "2", "--seed-map", "pmap"]) == 2
+    assert "--seed-map 'pmap' is not a seed map; valid: auto, vmap, loop" in capsys.readouterr().err
+
+
 def test_bad_input_names_the_valid_choices(capsys):
     assert ppo_cli.main(["--env", "nope"]) == 2
     assert "unknown environment 'nope'; valid names: arm7" in capsys.readouterr().err
