@@ -514,7 +514,7 @@ def run(spec: RunSpec) -> dict[str, Any]:
                 )  # fmt: skip
             state, chunk = new_state, chunk + 1
             sps = steps_per * len(seeds) / max(dt, 1e-9)
-            for logger, m in zip(loggers, per_seed, strict=True):
+            for logger, m in zip(loggers, per_seed, strict=False):  # no loggers off process 0
                 logger.write(chunk * steps_per, {**m, "steps_per_s": sps})
             bar.update(chunk * steps_per, _progress_info(per_seed[0], sps))
             if chunk % max(spec.checkpoint_every, 1) == 0 or chunk == stop_chunk:
@@ -533,7 +533,7 @@ def run(spec: RunSpec) -> dict[str, Any]:
         "compile_s": compile_s,
         "train_s": train_s,
     }
-    for logger, d in zip(loggers, seed_dirs, strict=True):
+    for logger, d in zip(loggers, seed_dirs, strict=False):  # no loggers off process 0
         plot_training_curves(read_csv(logger.path), d)
     if not result["finished"]:
         result["wall_s"] = wall_before + time.perf_counter() - t0
