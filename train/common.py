@@ -131,8 +131,8 @@ class RunSettings:
     """Random seed of the run (training); evaluation uses a separate stream derived from it."""
     seeds: int = 1
     """Train this many seeds (seed, seed + 1, …) in one run on one device; each writes its metrics,
-    figures and ``eval.json`` to ``<run dir>/seed<k>/`` as the run of ``--seed k`` would. 1: one run,
-    written to the run directory itself."""
+    figures and ``eval.json`` to ``<run dir>/seed<k>/`` as the run of ``--seed k`` would, with the
+    ``config.json`` of that run. 1: one run, written to the run directory itself."""
     seed_map: str = "auto"
     """With --seeds > 1: vmap (one program over the seeds), loop (the same compiled program once per
     seed each chunk) or auto (loop on the CPU, where XLA:CPU hangs on some vmapped-seed programs; else vmap)."""
@@ -474,8 +474,11 @@ def run(spec: RunSpec) -> dict[str, Any]:
     steps_per = trainer.env_steps_per_update
     loggers = []
     if main:
-        for d in seed_dirs:
+        for k, d in zip(seeds, seed_dirs, strict=True):
             os.makedirs(d, exist_ok=True)
+            if several and not resuming:  # the config of this seed's run alone (--seed k)
+                args = {**spec.config.get("args", {}), "seed": k, "seeds": 1}
+                _write_json(os.path.join(d, "config.json"), {**spec.config, "args": args})
             loggers.append(MetricsLogger(d, keep_until_step=chunk * steps_per if resuming else None))
     total_steps = trainer.num_updates * steps_per
     stop_chunk = trainer.num_updates

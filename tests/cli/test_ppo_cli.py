@@ -140,6 +140,8 @@ def test_seeds_train_together_each_as_its_own_seed_would(tmp_path):
         for seed in (7, 8):
             ev = json.load(open(os.path.join(run, f"seed{seed}", "eval.json")))
             assert ev["seed"] == seed and ev["env_steps"] == 256 and ev["episodes"] == 2
+            alone = json.load(open(os.path.join(run, f"seed{seed}", "config.json")))["args"]
+            assert (alone["seed"], alone["seeds"]) == (seed, 1)  # the config of --seed k alone
             rows = open(os.path.join(run, f"seed{seed}", "metrics.csv")).read().strip().splitlines()
             assert len(rows) == 5  # header + 4 chunks (the vmapped run's resume repeats none)
         assert not os.path.exists(os.path.join(run, "eval.json"))
