@@ -8,8 +8,8 @@ vmapped over their keys (``--seed-map``; the recurrent one on the CPU: one compi
 key), then runs every agent's test episode from ``t = 0`` (``envs_mjx.tracking.rollout``; a
 recurrent policy carries its LSTM state from the table's entry for step 0).  Metric: per axis,
 the sum over the test episode of |reference − real| (x, y in m, θ in rad), as the thesis's
-tables.  ``--set FIELD=VALUE``
-overrides PPO hyper-parameters and ``--env-config KEY=VALUE`` unicycle settings (e.g.
+tables.  ``--set FIELD=VALUE`` overrides PPO hyper-parameters and ``--env-config KEY=VALUE``
+unicycle settings (e.g.
 ``a_p=10``, ``observation=extended``; on top of the preset's, ``train.presets.ppo_env_overrides``)
 for every run; ``--label`` names the variant.
 """
@@ -27,6 +27,7 @@ from benchmarks.tracking_report import GOAL, THESIS, pairs
 from envs_mjx import tracking
 from jaxrl_robot.agents.ppo import make_train, make_trainer
 from jaxrl_robot.types import as_recurrent
+from train.common import SEED_MAPS
 from train.presets import ppo_preset
 
 METHODS = {"mlp": ("mlp", "none"), "two-stage": ("mlp", "action-search"), "lstm": ("lstm", "none")}
@@ -88,7 +89,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 
 def add_seed_map(p: argparse.ArgumentParser) -> None:
     """``--seed-map auto|vmap|loop`` (:func:`seeds_vmapped`)."""
-    p.add_argument("--seed-map", default="auto", choices=("auto", "vmap", "loop"),
+    p.add_argument("--seed-map", default="auto", choices=SEED_MAPS,
                    help="seeds as one vmapped program or one program each (auto: vmap, except lstm on the CPU)")
 
 

@@ -207,10 +207,15 @@ def command(row: Row, preset: str, seed: int, smoke: bool) -> list[str]:
     return [*row.argv, "--preset", preset, "--seed", str(seed), *(smoke_args(row) if smoke else ())]
 
 
+def latest_run(out: str) -> str | None:
+    """The newest run directory under ``out`` (None before the first start)."""
+    found = sorted(glob.glob(os.path.join(out, "*", "config.json")))
+    return os.path.dirname(found[-1]) if found else None
+
+
 def run_dir_of(runs: str, row: Row, seed: int) -> str | None:
     """The run directory of ``row`` and ``seed`` under ``runs`` (None before its first start)."""
-    found = sorted(glob.glob(os.path.join(runs, row.table, row.name, f"seed{seed}", "*", "config.json")))
-    return os.path.dirname(found[-1]) if found else None
+    return latest_run(os.path.join(runs, row.table, row.name, f"seed{seed}"))
 
 
 def seed_start(row: Row, seed: int, args: argparse.Namespace) -> tuple[dict[str, Any] | None, list[str], str]:
@@ -227,10 +232,27 @@ def seed_start(row: Row, seed: int, args: argparse.Namespace) -> tuple[dict[str,
 
 def seed_result(row: Row, seed: int, args: argparse.Namespace, code: Any, wall: float, where: str = "") -> dict:
     """The record of a seed's run that ended with exit ``code``: its evaluation, or the error."""
-    run_dir = run_dir_of(args.runs, row, seed)
+    return run_record(run_dir_of(args.runs, row, seed), code, wall, where)
+
+
+def run_record(run_dir: str | None, code: Any, wall: float, where: str = "") -> dict:
+    """The record of the run in ``run_dir`` (a seed's folder) that ended with exit ``code``: its
+    ``eval.json``, or the error."""
     if code != 0 or run_dir is None or not os.path.exists(os.path.join(run_dir, "eval.json")):
         return {"error": f"exit code {code}{where}", "run_dir": run_dir, "wall_s": wall}
     return {**json.load(open(os.path.join(run_dir, "eval.json"))), "run_dir": run_dir, "process_s": wall}
+
+
+def run_in_process(row: Row, argv: list[str], quiet: bool) -> tuple[Any, float]:
+    """``python -m train.<algo> argv`` of ``row`` in this process: ``(exit code, wall s)``."""
+    main = importlib.import_module(f"train.{row.algo}").main
+    t0 = time.perf_counter()
+    with contextlib.redirect_stdout(io.StringIO()) if quiet else contextlib.nullcontext():
+        try:
+            code = main(argv)
+        except SystemExit as e:  # a command line that does not parse
+            code = e.code
+    return code, time.perf_counter() - t0
 
 
 def run_seed(row: Row, seed: int, args: argparse.Namespace) -> dict[str, Any]:
@@ -238,15 +260,8 @@ def run_seed(row: Row, seed: int, args: argparse.Namespace) -> dict[str, Any]:
     done, argv, _ = seed_start(row, seed, args)
     if done is not None:
         return done
-    main = importlib.import_module(f"train.{row.algo}").main
-    t0 = time.perf_counter()
-    sink = io.StringIO()
-    with contextlib.redirect_stdout(sink) if args.quiet else contextlib.nullcontext():
-        try:
-            code = main(argv)
-        except SystemExit as e:  # a command line that does not parse
-            code = e.code
-    return seed_result(row, seed, args, code, time.perf_counter() - t0)
+    code, wall = run_in_process(row, argv, args.quiet)
+    return seed_result(row, seed, args, code, wall)
 
 
 def run_seeds_apart(row: Row, seeds: Sequence[int], args: argparse.Namespace) -> list[dict[str, Any]]:
@@ -276,8 +291,7 @@ def run_seeds_together(row: Row, seeds: Sequence[int], args: argparse.Namespace)
     on the CPU; ``train.common.SeedProgram``); the same records as :func:`run_seed`, in the order of
     ``seeds``, each with its ``run_dir`` the seed's folder ``<run>/seed<k>/``."""
     out = os.path.join(args.runs, row.table, row.name, "seeds" + "-".join(map(str, seeds)))
-    found = sorted(glob.glob(os.path.join(out, "*", "config.json")))
-    run = os.path.dirname(found[-1]) if found else None
+    run = latest_run(out)
     evals = [os.path.join(run, f"seed{k}", "eval.json") for k in seeds] if run else []
     if run and all(os.path.exists(e) for e in evals):
         return [{**json.load(open(e)), "run_dir": os.path.dirname(e), "skipped": True} for e in evals]
@@ -285,25 +299,9 @@ def run_seeds_together(row: Row, seeds: Sequence[int], args: argparse.Namespace)
         argv = ["--resume", run]
     else:
         argv = [*command(row, args.preset, seeds[0], args.smoke), "--seeds", str(len(seeds)), "--out", out]
-    main = importlib.import_module(f"train.{row.algo}").main
-    t0 = time.perf_counter()
-    with contextlib.redirect_stdout(io.StringIO()) if args.quiet else contextlib.nullcontext():
-        try:
-            code = main(argv)
-        except SystemExit as e:  # a command line that does not parse
-            code = e.code
-    wall = time.perf_counter() - t0
-    found = sorted(glob.glob(os.path.join(out, "*", "config.json")))
-    run = os.path.dirname(found[-1]) if found else None
-    records = []
-    for k in seeds:
-        seed_dir = os.path.join(run, f"seed{k}") if run else None
-        ev = os.path.join(seed_dir, "eval.json") if seed_dir else ""
-        if code != 0 or not os.path.exists(ev):
-            records.append({"error": f"exit code {code}", "run_dir": seed_dir, "wall_s": wall})
-        else:
-            records.append({**json.load(open(ev)), "run_dir": seed_dir, "process_s": wall})
-    return records
+    code, wall = run_in_process(row, argv, args.quiet)
+    run = latest_run(out)
+    return [run_record(os.path.join(run, f"seed{k}") if run else None, code, wall) for k in seeds]
 
 
 def axis_keys(ev: dict) -> tuple[str, str, str]:

@@ -577,7 +577,13 @@ SEED_MAPS = ("auto", "vmap", "loop")
 
 
 def resolve_seed_map(seed_map: str) -> str:
-    """``'vmap'`` or ``'loop'``: ``seed_map``, with ``'auto'`` → ``'loop'`` on the CPU backend, else ``'vmap'``."""
+    """``'vmap'`` or ``'loop'``: ``seed_map``, with ``'auto'`` → ``'loop'`` on the CPU backend, else ``'vmap'``.
+
+    Raises:
+      ValueError: ``seed_map`` is not one of :data:`SEED_MAPS`.
+    """
+    if seed_map not in SEED_MAPS:
+        raise ValueError(f"--seed-map {seed_map!r} is not a seed map; valid: {', '.join(SEED_MAPS)}")
     if seed_map == "auto":
         return "loop" if jax.default_backend() == "cpu" else "vmap"
     return seed_map
@@ -604,14 +610,13 @@ class SeedProgram:
     @staticmethod
     def of(trainer: Trainer, n: int, seed_map: str = "auto") -> SeedProgram:
         """The program of ``n`` seeds of ``trainer`` under ``seed_map`` (one of :data:`SEED_MAPS`)."""
-        if seed_map not in SEED_MAPS:
-            raise ValueError(f"--seed-map {seed_map!r} is not a seed map; valid: {', '.join(SEED_MAPS)}")
+        mapping = resolve_seed_map(seed_map)
         floats = lambda m: {k: float(v) for k, v in m.items()}  # noqa: E731
         update = jax.jit(trainer.update)
         if n == 1:
             init = lambda seeds: jax.jit(trainer.init)(jax.random.PRNGKey(seeds[0]))  # noqa: E731
             return SeedProgram(init, update, lambda tree, i: tree, lambda m: [floats(m)])
-        if resolve_seed_map(seed_map) == "loop":
+        if mapping == "loop":
             init_one = jax.jit(trainer.init)
 
             def update_all(states: tuple) -> tuple[tuple, tuple]:
@@ -853,9 +858,7 @@ class AlgorithmCLI:
         mesh = lane_mesh(args.devices)
         if args.seeds < 1:
             raise ValueError(f"--seeds {args.seeds} is out of range; allowed >= 1")
-        if args.seed_map not in SEED_MAPS:
-            raise ValueError(f"--seed-map {args.seed_map!r} is not a seed map; valid: {', '.join(SEED_MAPS)}")
-        if args.seeds > 1 and mesh.devices.size > 1 and resolve_seed_map(args.seed_map) == "vmap":
+        if resolve_seed_map(args.seed_map) == "vmap" and args.seeds > 1 and mesh.devices.size > 1:
             raise ValueError(f"--seeds {args.seeds} vmapped runs on one device; add --devices 1 (the lanes would "
                              f"be spread over {mesh.devices.size}) or --seed-map loop")  # fmt: skip
         trainer, per_chunk = self.make_trainer(args, env, cfg, mesh)
