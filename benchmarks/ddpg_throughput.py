@@ -19,7 +19,15 @@ Both use PER, the thesis's 300-100 networks and a memory of 10^6.  Env steps/s c
 steps (collecting workers' included); updates/s counts the learner's updates (read from the
 state's update counter, not assumed).  Goals (issue 12): ≥ 1 M collected env-steps/s on one H200
 while the learner keeps ≥ 2 000 updates/s of 4 × 32 transitions; 2 GPUs ≥ 1.8 × the updates/s of
-one at the same per-device work (the default mesh is every device: run it on 1 and 2 GPUs).
+one at the same per-device work (the default mesh is every device: run it on 1 and 2 GPUs, the
+second with ``--baseline`` naming the first's JSON).
+
+Scaling: ``--baseline FILE`` (a run on fewer devices) adds a table pairing every distributed row
+with the baseline's row of the same work per device (lanes, synchronous workers and collecting
+workers per device; the same updates per iteration and mini-batch per worker).  Synchronous
+workers average their gradients into one update, so more devices at the same per-device work
+keep the update rate at best and multiply the transitions learned from per update; the table
+gives both ratios: updates/s and learner transitions/s (updates/s × transitions per update).
 
 Results: ``benchmarks/results/<device>-ddpg_throughput.json`` and ``.md``.
 """
@@ -27,6 +35,7 @@ Results: ``benchmarks/results/<device>-ddpg_throughput.json`` and ``.md``.
 from __future__ import annotations
 
 import argparse
+import json
 import statistics
 import time
 from typing import Any
@@ -74,6 +83,7 @@ def bench(kind: str, lanes: int, args: argparse.Namespace) -> dict[str, Any]:
     return {
         "kind": kind, "lanes": config.lanes, "num_envs": config.num_envs, "unroll": args.unroll,
         "updates_per_iteration": args.updates, "transitions_per_update": args.sync_workers * args.batch,
+        "sync_workers": args.sync_workers if kind == "distributed" else 1, "batch": args.batch,
         "iterations_per_call": args.iterations, "devices": jax.device_count(), "compile_s": compile_s,
         "call_s": med, "call_s_all": times, "env_steps_per_s": trainer.env_steps_per_update / med,
         "updates_per_s": updates_per_call / med, "updates_per_call": updates_per_call,
@@ -107,7 +117,68 @@ def to_markdown(result: dict[str, Any]) -> str:
             f"| {r['updates_per_s']:,.0f} | {ratio_s} | {ratio_u} | {r['compile_s']:.1f} |"
         )
     lines += ["", "Bold: both goals met in that row.", ""]
+    if result.get("baseline"):
+        lines += scaling_lines(result, result["baseline"])
     return "\n".join(lines)
+
+
+def per_device(row: dict[str, Any], devices: int) -> tuple:
+    """The work per device of a distributed row: (lanes, synchronous workers, updates, batch)."""
+    return (row["lanes"] / devices, row["sync_workers"] / devices, row["updates_per_iteration"], row["batch"])
+
+
+def scaling_rows(result: dict[str, Any], baseline: dict[str, Any]) -> list[dict[str, Any]]:
+    """Every distributed row of ``result`` paired with the ``baseline`` row of the same per-device work:
+    ``{"lanes", "base_lanes", "updates_ratio", "transitions_ratio", ...}`` (ratios ``result / baseline``)."""
+    base = {per_device(r, baseline["devices"]): r for r in baseline["runs"] if r["kind"] == "distributed"}
+    out = []
+    for r in result["runs"]:
+        b = base.get(per_device(r, result["devices"])) if r["kind"] == "distributed" else None
+        if b is None:
+            continue
+        moved = r["updates_per_s"] * r["transitions_per_update"], b["updates_per_s"] * b["transitions_per_update"]
+        out.append({
+            "lanes": r["lanes"], "base_lanes": b["lanes"], "sync_workers": r["sync_workers"],
+            "base_sync_workers": b["sync_workers"], "updates_per_s": r["updates_per_s"],
+            "base_updates_per_s": b["updates_per_s"], "updates_ratio": r["updates_per_s"] / b["updates_per_s"],
+            "transitions_per_s": moved[0], "base_transitions_per_s": moved[1], "transitions_ratio": moved[0] / moved[1],
+            "steps_ratio": r["env_steps_per_s"] / b["env_steps_per_s"],
+        })  # fmt: skip
+    return out
+
+
+def scaling_lines(result: dict[str, Any], baseline: dict[str, Any]) -> list[str]:
+    """The Markdown scaling table against ``baseline`` (see :func:`scaling_rows`)."""
+    n, m = result["devices"], baseline["devices"]
+    lines = [
+        f"## {n} devices against {m} at the same work per device",
+        "",
+        f"Baseline: `{baseline['command']}` on {baseline['device']} × {m} (commit {baseline['commit']}).",
+        "",
+        f"| lanes ({n} / {m}) | sync workers ({n} / {m}) | updates/s ({n} / {m}) | × | learner transitions/s "
+        f"({n} / {m}) | × | env steps/s × |",
+        "|---|---|---|---:|---|---:|---:|",
+    ]
+    for r in scaling_rows(result, baseline):
+        lines.append(
+            f"| {r['lanes']} / {r['base_lanes']} | {r['sync_workers']} / {r['base_sync_workers']} "
+            f"| {r['updates_per_s']:,.0f} / {r['base_updates_per_s']:,.0f} | {r['updates_ratio']:.2f} "
+            f"| {r['transitions_per_s']:,.0f} / {r['base_transitions_per_s']:,.0f} | {r['transitions_ratio']:.2f} "
+            f"| {r['steps_ratio']:.2f} |"
+        )
+    return lines + [""]
+
+
+def load_baseline(path: str) -> dict[str, Any]:
+    """A baseline run's JSON (``--baseline``); a one-line error if it is not one."""
+    try:
+        with open(path) as f:
+            data = json.load(f)
+        if data.get("benchmark") != "ddpg_throughput":
+            raise ValueError("not a ddpg_throughput result")
+    except (OSError, ValueError) as e:
+        raise SystemExit(f"error: --baseline {path}: {e}") from None
+    return {k: data[k] for k in ("command", "commit", "device", "devices", "runs")}
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
@@ -126,13 +197,16 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--repeats", type=int, default=5 if on_gpu else 3)
     p.add_argument("--set", nargs="*", default=[], help="further DDPG fields FIELD=VALUE")
     provenance.add_args(p)
+    p.add_argument("--baseline", help="the JSON of a run on fewer devices: adds the scaling table")
     p.add_argument("--out", default=RESULTS)
     args = p.parse_args(argv)
+    baseline = load_baseline(args.baseline) if args.baseline else None
     prov = provenance.record("benchmarks.ddpg_throughput", argv, seeds=SEEDS, commit=args.commit)
     result = {
         "benchmark": "ddpg_throughput", "provenance": prov, "device": device_label(), "devices": jax.device_count(),
         "env": args.env, "command": prov["command"], "commit": prov["commit"], "jax": jax.__version__,
         "date": time.strftime("%Y-%m-%d"), "repeats": args.repeats, "iterations": args.iterations, "runs": [],
+        "baseline": baseline,
     }  # fmt: skip
     stem = f"{args.out}/{device_label()}x{jax.device_count()}-ddpg_throughput-{args.env}"
     for lanes in args.lanes:

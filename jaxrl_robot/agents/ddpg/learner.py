@@ -13,14 +13,18 @@ DDPG run the same update:
 * :data:`SINGLE` — one mini-batch of ``batch_size``; the learner is replicated on every device.
 * :func:`worker_shards` — the synchronous workers of distributed DDPG (thesis §4.2, Algorithms
   4–5).  Each of a device's ``G`` workers samples its own prioritised mini-batch from the shared
-  replay with the key ``fold_in(key, w)`` of its global index ``w``, computes its critic gradient
-  ``g_w^Q`` and, after the critic step, its actor gradient ``g_w^μ`` on that batch (its own
-  target networks equal the global ones, so one replicated set stands for all); the global
-  networks apply the means ``(1/m) Σ_w g_w`` (Algorithm 4, lines 4–9) — a mean over the local
-  worker axis, then over devices.  The sampled indices and new priorities of every worker are
-  gathered in worker order and written back in one priority update (repeats: the last worker's
-  value wins), so β anneals once per global update.  The new priorities are the TD errors of the
-  gradient computation, as in the single learner.
+  replay with the key ``fold_in(key, w)`` of its global index ``w`` (importance weights
+  normalised within its batch, Eq. 3.10), and computes its critic gradient ``g_w^Q`` and, after
+  the critic step, its actor gradient ``g_w^μ`` on that batch (its own target networks equal the
+  global ones, so one replicated set stands for all); the global networks apply the means
+  ``(1/m) Σ_w g_w`` (Algorithm 4, lines 4–9).  Every worker's loss is a mean over its ``b``
+  rows, so the mean of the workers' gradients is the gradient of the mean of their losses, which
+  is the loss of the device's ``G·b`` rows taken together: a device computes one gradient on its
+  workers' concatenated batches (one network pass, not ``G``), then the mean over devices.  The
+  sampled indices and new priorities of every worker are gathered in worker order and written
+  back in one priority update (repeats: the last worker's value wins), so β anneals once per
+  global update.  The new priorities are the TD errors of the gradient computation, as in the
+  single learner.
 """
 
 from __future__ import annotations
@@ -59,13 +63,17 @@ class Workers(NamedTuple):
 
     Attributes:
       keys: ``key -> keys``: one key (single learner) or ``[G]`` keys, one per local worker.
-      map: ``fn -> fn`` applied per worker (identity, or ``vmap`` over the local worker axis).
-      mean: a pytree (gradient, loss) ``-> its mean over every worker`` of every device.
-      gather: ``[G, n, ...] -> [m · n, ...]``: every worker's rows in global worker order.
+      map: ``fn -> fn`` applied per worker to draw its mini-batch (identity, or ``vmap`` over the
+        local worker axis).
+      flat: ``[G, b, ...] -> [G·b, ...]``: this device's workers' rows as one batch (identity for
+        one learner).
+      mean: a pytree (gradient, loss) of this device ``-> its mean over every device``.
+      gather: ``[G·b, ...] -> [m · b, ...]``: every worker's rows in global worker order.
     """
 
     keys: Callable[[jax.Array], jax.Array]
     map: Callable[[Callable], Callable]
+    flat: Callable[[Any], Any]
     mean: Callable[[Any], Any]
     gather: Callable[[Any], Any]
 
@@ -74,20 +82,18 @@ def _same(x: Any) -> Any:
     return x
 
 
-SINGLE = Workers(keys=_same, map=_same, mean=_same, gather=_same)
+SINGLE = Workers(keys=_same, map=_same, flat=_same, mean=_same, gather=_same)
 """One learner with one mini-batch per update, replicated on every device."""
 
 
 def worker_shards(worker_ids: jax.Array) -> Workers:
     """The synchronous workers ``worker_ids [G]`` (global indices) of this device (inside ``shard_lanes``)."""
 
-    def mean(tree: Any) -> Any:
-        return parallel.pmean(jax.tree.map(lambda x: jnp.mean(x, axis=0), tree))
+    def flat(tree: Any) -> Any:
+        return jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), tree)
 
-    def gather(tree: Any) -> Any:
-        return jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), parallel.all_gather(tree))
-
-    return Workers(keys=lambda key: per_lane_keys(key, worker_ids), map=jax.vmap, mean=mean, gather=gather)
+    return Workers(keys=lambda key: per_lane_keys(key, worker_ids), map=jax.vmap, flat=flat, mean=parallel.pmean,
+                   gather=parallel.all_gather)
 
 
 def sample(replay: Any, workers: Workers, key: jax.Array, buf: Any) -> Any:
@@ -183,21 +189,17 @@ def make_learner(
         key, index = xs
         actor_p, critic_p, t_actor, t_critic, a_opt, c_opt, buf = carry
         k_sample, k_smooth = jax.random.split(key) if config.target_noise > 0 else (key, key)
-        smp = sample(replay, workers, k_sample, buf)
-        tr = workers.map(lambda t: normalized(stats, t))(smp.experience)
+        smp = workers.flat(sample(replay, workers, k_sample, buf))  # [G·b] rows of this device's workers
+        tr = normalized(stats, smp.experience)
         weights = smp.weights if config.per else None
-        if config.target_noise > 0:
-            y = workers.map(lambda t, k: target(t_actor, t_critic, t, k))(tr, workers.keys(k_smooth))
-        else:
-            y = workers.map(lambda t: target(t_actor, t_critic, t, None))(tr)
+        y = target(t_actor, t_critic, tr, k_smooth if config.target_noise > 0 else None)
 
         def c_loss(p, tr, y, weights):
             if config.twin_critics:
                 return twin_critic_loss(q_values(p, tr.obs, tr.action), y, weights)
             return critic_loss(critic.apply(p, tr.obs, tr.action), y, weights)
 
-        grad_c = jax.value_and_grad(c_loss, has_aux=True)
-        (closs, td), grads = workers.map(lambda t, y_, w: grad_c(critic_p, t, y_, w))(tr, y, weights)
+        (closs, td), grads = jax.value_and_grad(c_loss, has_aux=True)(critic_p, tr, y, weights)
         closs, grads = workers.mean((closs, grads))
         updates, c_opt = critic_tx.update(grads, c_opt, critic_p)
         critic_p = optax.apply_updates(critic_p, updates)
@@ -209,8 +211,7 @@ def make_learner(
         def actor_step(args: tuple) -> tuple[tuple, jax.Array, jax.Array]:
             """Actor step on ``−mean Q1(s, μ(s))`` and soft target updates."""
             actor_p, t_actor, t_critic, a_opt = args
-            grad_a = jax.value_and_grad(a_loss, has_aux=True)
-            (aloss, q), grads = workers.map(lambda obs: grad_a(actor_p, obs))(tr.obs)
+            (aloss, q), grads = jax.value_and_grad(a_loss, has_aux=True)(actor_p, tr.obs)
             aloss, grads = workers.mean((aloss, grads))
             updates, a_opt = actor_tx.update(grads, a_opt, actor_p)
             actor_p = optax.apply_updates(actor_p, updates)
@@ -220,7 +221,7 @@ def make_learner(
 
         def hold(args: tuple) -> tuple[tuple, jax.Array, jax.Array]:
             """No actor or target step (``policy_delay``); the loss is still reported."""
-            aloss, q = workers.map(lambda obs: a_loss(args[0], obs))(tr.obs)
+            aloss, q = a_loss(args[0], tr.obs)
             return args, workers.mean(aloss), q
 
         def follow(args: tuple) -> tuple[tuple, jax.Array, jax.Array]:
@@ -240,10 +241,10 @@ def make_learner(
             args, aloss, q = actor_step(args)
         actor_p, t_actor, t_critic, a_opt = args
         if config.per:
-            indices, err = workers.gather((smp.indices, workers.map(priority_error)(td)))
+            indices, err = workers.gather((smp.indices, priority_error(td)))
             buf = replay.update_priorities(buf, indices, err)
-        out = {"critic_loss": closs, "actor_loss": aloss, "q": workers.mean(workers.map(jnp.mean)(q)),
-               "td_abs": workers.mean(workers.map(lambda d: jnp.mean(jnp.abs(d)))(td))}
+        out = {"critic_loss": closs, "actor_loss": aloss, "q": workers.mean(jnp.mean(q)),
+               "td_abs": workers.mean(jnp.mean(jnp.abs(td)))}
         return (actor_p, critic_p, t_actor, t_critic, a_opt, c_opt, buf), out
 
     def learn(
