@@ -274,3 +274,32 @@ def test_presets_thesis_and_accelerator_settings():
             cfg = ddpg_preset(name, env, length, "sparse", distributed=True).validate()
             assert cfg.distributed and cfg.num_envs % cfg.sync_workers == 0
             assert cfg.iterations == ddpg_preset(name, env, length, "sparse").iterations
+
+
+@pytest.mark.parametrize("schedule", ["steps", "episodes"])
+def test_one_collection_of_both_kinds_of_lane_equals_two_separate_ones(schedule):
+    """Synchronous and collecting lanes step as one batch (``collect(..., split=n)``): the rows, the
+    lanes' states and noise, and the episode sums of each part equal those of collecting each part
+    alone with the same key (every lane's randomness is keyed by its global id)."""
+    from jaxrl_robot.agents.ddpg import core
+
+    config = _tiny(schedule=schedule, episode_length=3, unroll_length=4, noise_scale=(0.3,), num_envs=6)
+    s = core.setup(config, ToyGoalEnv(max_steps=3, step_size=0.3))
+    params = s.actor.init(jax.random.PRNGKey(1), jnp.zeros((1, s.obs_size)))
+    stats = init_running_stats(s.obs_size)
+    ids, n = jnp.arange(6), 2
+    env_state, noise_state = s.acting.reset(jax.random.split(jax.random.PRNGKey(2), 6))
+
+    def collect(lanes, split=None):
+        policy = s.acting.policy(ids[lanes], params, stats, None)
+        part = jax.tree.map(lambda x: x[lanes], (env_state, noise_state))
+        return jax.jit(lambda *a: s.acting.collect(jax.random.PRNGKey(3), ids[lanes], policy, *a, split=split))(*part)
+
+    both = collect(slice(None), split=n)
+    for i, lanes in enumerate((slice(0, n), slice(n, None))):
+        alone = collect(lanes)
+        part = jax.tree.map(lambda x, sl=lanes: x[sl], (both.env_state, both.noise_state, both.rows, both.mask))
+        assert _same(part, (alone.env_state, alone.noise_state, alone.rows, alone.mask))
+        sums = {k: float(v[i]) for k, v in both.sums.items()}
+        assert sums == {k: float(v) for k, v in alone.sums.items()}
+    assert float(both.sums["episodes"][0] + both.sums["episodes"][1]) > 0  # episodes ended in the window

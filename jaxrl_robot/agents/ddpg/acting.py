@@ -59,7 +59,7 @@ class Collected(NamedTuple):
       mask: ``[b, N]`` bool, the rows to store ('episodes': steps before the episode ended and
         the HER copies kept); None where every row is stored ('steps').
       sums: ``[]`` sums over this device's finished episodes: ``episodes``, ``episode_return``,
-        ``episode_length`` and every per-lane env metric.
+        ``episode_length`` and every per-lane env metric (``[2]`` with ``split``).
       labels: ``[b, N, A]`` a teacher's actions for the rows' states ('steps' with a teacher), else None.
     """
 
@@ -79,9 +79,11 @@ class Acting(NamedTuple):
       policy: ``(lane_ids [b], actor params, obs stats, factor or None) -> LanePolicy``:
         ``clip(μ(x) + f·ω, −1, 1)`` (Eq. 3.7) with ``x`` the normalised observation.
       explore: the same as a function ``(key, lane_ids, params, stats, obs, noise, factor)``.
-      collect: ``(key, lane_ids [b], policy, State [b], NoiseState [b], teacher=None) -> Collected``;
-        ``teacher(key, State [b], action [b, A]) -> (executed action, label)`` ('steps' only, the
-        imitation stage of :mod:`~jaxrl_robot.agents.ddpg.imitation`) labels every visited state.
+      collect: ``(key, lane_ids [b], policy, State [b], NoiseState [b], teacher=None, split=None)
+        -> Collected``; ``teacher(key, State [b], action [b, A]) -> (executed action, label)``
+        ('steps' only, the imitation stage of :mod:`~jaxrl_robot.agents.ddpg.imitation`) labels
+        every visited state.  ``split``: the episode sums come as ``[2]``, lanes ``[:split]`` and
+        ``[split:]`` apart (two kinds of worker stepped as one batch: one env step, not two).
       gather: ``(rows [b, N], mask [b, N] | None) -> (rows [R], mask [R] | None)`` with
         ``R = B · N`` over every device: time-major in global lane order (rows of one time step
         together), or lane-major with HER (an episode's rows and their copies together).
@@ -170,9 +172,18 @@ def make_acting(
         env_state = jax.vmap(lane_env.reset)(keys) if lane_env is not None else batched_env.reset(keys)
         return env_state, fresh_noise(keys.shape[0])
 
-    def run_episodes(key: jax.Array, lane_ids: jax.Array, policy: LanePolicy, nstate: NoiseState) -> Collected:
+    def lane_sum(split: int | None) -> Callable[[jax.Array], jax.Array]:
+        """Sum over lanes (the last axis): ``[..., b] -> [...]``, or ``[..., 2]``: lanes ``[:split]``, ``[split:]``."""
+        if split is None:
+            return lambda x: jnp.sum(x, axis=-1)
+        return lambda x: jnp.stack([jnp.sum(x[..., :split], axis=-1), jnp.sum(x[..., split:], axis=-1)], axis=-1)
+
+    def run_episodes(
+        key: jax.Array, lane_ids: jax.Array, policy: LanePolicy, nstate: NoiseState, split: int | None = None
+    ) -> Collected:
         """One whole episode in each lane ``lane_ids [b]``."""
         b = lane_ids.shape[0]
+        red = lane_sum(split)
         k_reset, k_steps, k_her = jax.random.split(key, 3)
         state0 = jax.vmap(lane_env.reset)(per_lane_keys(k_reset, lane_ids))
 
@@ -193,11 +204,11 @@ def make_acting(
 
         carry = (state0, fresh_noise(b), jnp.zeros((b,), jnp.float32))
         (final, _, _), traj = jax.lax.scan(body, carry, jax.random.split(k_steps, T))
-        sums = {"episodes": jnp.asarray(b, jnp.float32)}
-        sums["episode_return"] = jnp.sum(traj["valid"] * traj["reward"])
-        sums["episode_length"] = jnp.sum(traj["valid"])
+        sums = {"episodes": red(jnp.ones((b,), jnp.float32))}
+        sums["episode_return"] = red(jnp.sum(traj["valid"] * traj["reward"], axis=0))
+        sums["episode_length"] = red(jnp.sum(traj["valid"], axis=0))
         for name, v in traj["metrics"].items():
-            sums[name] = jnp.sum(traj["ending"] * v)
+            sums[name] = red(jnp.sum(traj["ending"] * v, axis=0))
         lanes = _lane_major(traj)  # [b, T, ...]
         if her is None:
             reward = lanes["reward"] + fail_bonus * lanes["failed"]
@@ -217,10 +228,12 @@ def make_acting(
         return Collected(final, nstate, rows, mask, sums)
 
     def run_steps(
-        key: jax.Array, lane_ids: jax.Array, policy: LanePolicy, s: State, nstate: NoiseState, teacher: Any = None
+        key: jax.Array, lane_ids: jax.Array, policy: LanePolicy, s: State, nstate: NoiseState, teacher: Any = None,
+        split: int | None = None,
     ) -> Collected:
         """``unroll_length`` steps of the auto-resetting lanes ``lane_ids [b]`` (labelled by ``teacher``)."""
         b = lane_ids.shape[0]
+        red = lane_sum(split)
 
         def body(carry, k):
             s, nstate = carry
@@ -233,24 +246,26 @@ def make_acting(
             term = terminal(ns)
             tr = Transition(s.obs, a, ns.reward + fail_bonus * failed(ns, term), ns.info["final_obs"], term)
             nstate = tree_where(done > 0, fresh_noise(b), nstate)  # new episode, new noise process
-            ep = {"episodes": jnp.sum(done), "episode_return": jnp.sum(done * ns.info["episode_return"]),
-                  "episode_length": jnp.sum(done * ns.info["episode_length"])}
+            ep = {"episodes": red(done), "episode_return": red(done * ns.info["episode_return"]),
+                  "episode_length": red(done * ns.info["episode_length"])}
             for name, v in lane_metrics(ns, b).items():
-                ep[name] = jnp.sum(done * v)
+                ep[name] = red(done * v)
             return (ns, nstate), (tr, ep, label)
 
         (s, nstate), (traj, ep, labels) = jax.lax.scan(body, (s, nstate), jax.random.split(key, config.unroll_length))
         labels = _lane_major(labels) if teacher is not None else None
-        return Collected(s, nstate, _lane_major(traj), None, jax.tree.map(jnp.sum, ep), labels)
+        sums = jax.tree.map(lambda x: jnp.sum(x, axis=0), ep)
+        return Collected(s, nstate, _lane_major(traj), None, sums, labels)
 
     def collect(
-        key: jax.Array, lane_ids: jax.Array, policy: LanePolicy, s: State, nstate: NoiseState, teacher: Any = None
+        key: jax.Array, lane_ids: jax.Array, policy: LanePolicy, s: State, nstate: NoiseState, teacher: Any = None,
+        split: int | None = None,
     ) -> Collected:
         if config.schedule == "episodes":
             if teacher is not None:
                 raise ValueError("a teacher needs schedule='steps'")
-            return run_episodes(key, lane_ids, policy, nstate)
-        return run_steps(key, lane_ids, policy, s, nstate, teacher)
+            return run_episodes(key, lane_ids, policy, nstate, split)
+        return run_steps(key, lane_ids, policy, s, nstate, teacher, split)
 
     time_major = her is None
 

@@ -61,7 +61,7 @@ from flax import struct
 
 from jaxrl_robot import parallel
 from jaxrl_robot.agents.ddpg import core
-from jaxrl_robot.agents.ddpg.acting import LanePolicy, tree_where
+from jaxrl_robot.agents.ddpg.acting import Collected, LanePolicy, tree_where
 from jaxrl_robot.agents.ddpg.config import DDPGConfig
 from jaxrl_robot.agents.ddpg.core import DDPGState
 from jaxrl_robot.agents.ddpg.learner import worker_shards
@@ -112,6 +112,24 @@ def _groups(x: jax.Array, n: int) -> jax.Array:
 def _ungroup(x: jax.Array) -> jax.Array:
     """``[n, l, ...] -> [n·l, ...]``."""
     return x.reshape((-1,) + x.shape[2:])
+
+
+def _split(tree: Any, n: int) -> tuple[Any, Any]:
+    """``[b, ...]`` leaves ``-> ([n, ...], [b − n, ...])``."""
+    return jax.tree.map(lambda x: x[:n], tree), jax.tree.map(lambda x: x[n:], tree)
+
+
+def _concat(a: Any, b: Any) -> Any:
+    """``[n, ...]`` and ``[m, ...]`` leaves ``-> [n + m, ...]``."""
+    return jax.tree.map(lambda x, y: jnp.concatenate([x, y]), a, b)
+
+
+def _split_collected(got: Collected, n: int) -> tuple[Collected, Collected]:
+    """A ``collect(..., split=n)`` of ``b`` lanes as the collections of lanes ``[:n]`` and ``[n:]``."""
+    lanes = (got.env_state, got.noise_state, got.rows, got.mask)
+    head, tail = _split(lanes, n)
+    return (Collected(*head, sums=jax.tree.map(lambda x: x[0], got.sums)),
+            Collected(*tail, sums=jax.tree.map(lambda x: x[1], got.sums)))  # fmt: skip
 
 
 def make_distributed_trainer(config: DDPGConfig, env: Env, **options: Any) -> Trainer:
@@ -185,27 +203,46 @@ def make_distributed_trainer(config: DDPGConfig, env: Env, **options: Any) -> Tr
         groups = jax.tree.map(lambda x: x.reshape((n, -1) + x.shape[2:]), rows)  # [n, l·N, ...]
         return jax.vmap(s.learner.priorities)(*copies, groups).reshape(rows.reward.shape)
 
+    def both_policy(sync: LanePolicy, col: LanePolicy, n: int) -> LanePolicy:
+        """The synchronous lanes ``[:n]`` under ``sync``, the collecting lanes ``[n:]`` under ``col``."""
+
+        def policy(key: jax.Array, obs: jax.Array, nstate: NoiseState) -> tuple[jax.Array, NoiseState]:
+            head, tail = _split((obs, nstate), n)
+            return _concat(sync(key, *head), col(key, *tail))
+
+        return policy
+
     def iteration(state: DistributedDDPGState, ids: dict[str, jax.Array]) -> tuple[DistributedDDPGState, tuple]:
         key, k_act, k_learn = jax.random.split(state.key, 3)
         factor = core.noise_factor(config, state.iteration)
         policy = s.acting.policy(ids["lanes"], state.actor_params, state.obs_stats, factor)
-        got = s.acting.collect(k_act, ids["lanes"], policy, state.env_state, state.noise_state)
-        prio = priorities(copies_of(state, 1), got.rows, 1) if config.per else None
-        (rows, prio), mask = s.acting.gather((got.rows, prio), got.mask)
-        state = state.replace(env_state=got.env_state, noise_state=got.noise_state)
         extra = {}
-        if C:
+        if not C:
+            got = s.acting.collect(k_act, ids["lanes"], policy, state.env_state, state.noise_state)
+            prio = priorities(copies_of(state, 1), got.rows, 1) if config.per else None
+            (rows, prio), mask = s.acting.gather((got.rows, prio), got.mask)
+            state = state.replace(env_state=got.env_state, noise_state=got.noise_state)
+        else:
+            # Both kinds of worker step as one batch of lanes (one env step per time step, not
+            # two); lane ids, and so every lane's randomness, are as if each kind acted alone.
             col, staleness = fetch(state, ids["collectors"])
             factors = noise_factors[ids["collectors"]]
             factors = factors if factor is None else factors * factor
-            col_got = s.acting.collect(k_act, ids["collect_lanes"], group_policy(ids["collect_lanes"], col, factors),
-                                       col.env_state, col.noise_state)
+            n = s.local_lanes
+            both = both_policy(policy, group_policy(ids["collect_lanes"], col, factors), n)
+            (env_state, noise_state) = _concat((state.env_state, state.noise_state), (col.env_state, col.noise_state))
+            both_got = s.acting.collect(k_act, jnp.concatenate([ids["lanes"], ids["collect_lanes"]]), both,
+                                        env_state, noise_state, split=n)  # fmt: skip
+            got, col_got = _split_collected(both_got, n)
+            prio = priorities(copies_of(state, 1), got.rows, 1) if config.per else None
+            (rows, prio), mask = s.acting.gather((got.rows, prio), got.mask)
             copies = (col.actor_params, col.critic_params, col.obs_stats)
             col_prio = priorities(copies, col_got.rows, local_collectors) if config.per else None
             (col_rows, col_prio), col_mask = s.acting.gather((col_got.rows, col_prio), col_got.mask)
             rows, prio, mask = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), (rows, prio, mask),
                                             (col_rows, col_prio, col_mask))
-            state = state.replace(collectors=col.replace(env_state=col_got.env_state, noise_state=col_got.noise_state))
+            state = state.replace(env_state=got.env_state, noise_state=got.noise_state,
+                                  collectors=col.replace(env_state=col_got.env_state, noise_state=col_got.noise_state))
             extra = {"episodes": col_got.sums, "staleness": parallel.all_gather(staleness)}
         state = core.store(s, state, rows, mask, prio)
         state, sums, count = s.learner.learn(state, k_learn, s.updates_per_iteration, worker_shards(ids["workers"]))
