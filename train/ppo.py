@@ -44,7 +44,7 @@ class Args(common.RunOptions):
 
 def env_settings(args: Args) -> dict[str, Any]:
     """The preset's env options, then ``--reward`` and ``--env-config``."""
-    return {**ppo_env_overrides(args.preset, args.env), **common.env_overrides(args)}
+    return {**ppo_env_overrides(args.preset, args.env, args.ppo.pretrain), **common.env_overrides(args)}
 
 
 def preset(args: Args, env: Any) -> PPOConfig:

@@ -41,6 +41,7 @@ __all__ = [
     "ppo_env_overrides",
     "ddpg_env_overrides",
     "RACING_ENV",
+    "TWO_STAGE_A_P",
     "UNICYCLE_A_P",
     "lstm_variant",
     "ppo_preset",
@@ -197,8 +198,9 @@ def _family(env_name: str) -> str:
     return "other"
 
 
-def ppo_env_overrides(name: str, env_name: str) -> dict:
-    """Env settings a preset needs (the user's ``--env-config`` goes on top).
+def ppo_env_overrides(name: str, env_name: str, pretrain: str = "none") -> dict:
+    """Env settings a preset needs (the user's ``--env-config`` goes on top); ``pretrain``: PPO's
+    ``--pretrain`` (two-stage training has its own ``a_p`` under ``fast``, below).
 
     ``arm7`` under ``thesis`` and ``cpu`` runs in ``kinematic`` mode — the thesis's setting, and
     the one that is fast on a CPU: MJX's ``pd`` physics of the 7-link chain compiles and runs
@@ -211,12 +213,19 @@ def ppo_env_overrides(name: str, env_name: str) -> dict:
     At 30 M steps, 3 seeds, x / y / θ sums on the sine: 0.63 / 0.95 / 0.29 at a_p = 100, 0.32 /
     0.41 / 0.18 at 300; ellipse 0.47 / 0.29 / 0.55 and 0.33 / 0.24 / 0.36
     (``gpu-nvidia_h100_80gb_hbm3-tracking_sharper_rewards.md``).  ``cpu`` keeps 100 (300 not
-    measured there).  ``thesis`` keeps a_p = 1.
+    measured there).  ``thesis`` keeps a_p = 1.  Two-stage training (``pretrain='action-search'``)
+    under ``fast`` uses a_p = 1000 (:data:`TWO_STAGE_A_P`): its 20 M-step PPO stage reached 0.64 /
+    1.79 / 0.56 on the sine at 300 and 0.39 / 0.77 / 0.22 at 1000, the ellipse 0.72 / 0.37 / 0.54
+    and 0.69 / 0.51 / 0.58 (``gpu-nvidia_h100_80gb_hbm3-tracking_ap1000.md``).  The LSTM keeps 300:
+    at 1000 its sine improved (1.49 / 1.22 / 0.33 → 0.78 / 0.37 / 0.13) but one ellipse seed of
+    three diverged (mean 1.71 / 1.53 / 0.70 against 0.46 / 0.44 / 0.29).
     """
     name = resolve_preset(name)
     if _family(env_name) == "arm" and name in ("thesis", "cpu"):
         return {"mode": "kinematic"}
     if env_name.split(":")[-1] == "unicycle" and name in ("cpu", "fast"):
+        if pretrain == "action-search" and name in TWO_STAGE_A_P:
+            return {"a_p": TWO_STAGE_A_P[name]}
         return {"a_p": UNICYCLE_A_P[name]}
     return {}
 
@@ -224,6 +233,9 @@ def ppo_env_overrides(name: str, env_name: str) -> dict:
 UNICYCLE_A_P = {"cpu": 100.0, "fast": 300.0}
 """Eq. 3.23's ``a_p`` of the unicycle under the ``cpu`` and ``fast`` presets (every algorithm; see
 :func:`ppo_env_overrides` and :func:`ddpg_env_overrides` for the measurements)."""
+
+TWO_STAGE_A_P = {"fast": 1000.0}
+"""The unicycle's ``a_p`` for PPO's two-stage training under these presets (else :data:`UNICYCLE_A_P`)."""
 
 
 def ppo_preset(
@@ -239,7 +251,7 @@ def ppo_preset(
       policy: ``'lstm'``: the recurrent variant (:func:`lstm_variant`).
       pretrain: ``'action-search'``: two-stage training (:func:`two_stage_variant`).
     """
-    config, env_overrides = _ppo_base_preset(name, env_name, episode_length, action_size)
+    config, env_overrides = _ppo_base_preset(name, env_name, episode_length, action_size, pretrain)
     if policy == "lstm":
         config = lstm_variant(config, resolve_preset(name), _family(env_name))
     if pretrain != "none":
@@ -273,11 +285,13 @@ def two_stage_variant(config: PPOConfig, name: str, episode_length: int) -> PPOC
     return config.replace(pretrain_episodes=200, total_steps=pretrain + (2 * config.total_steps) // 3)
 
 
-def _ppo_base_preset(name: str, env_name: str, episode_length: int, action_size: int) -> tuple[PPOConfig, dict]:
+def _ppo_base_preset(
+    name: str, env_name: str, episode_length: int, action_size: int, pretrain: str = "none"
+) -> tuple[PPOConfig, dict]:
     """The feed-forward PPO preset (see :func:`ppo_preset`)."""
     name = resolve_preset(name, env_name)
     family = _family(env_name)
-    env_overrides = ppo_env_overrides(name, env_name)
+    env_overrides = ppo_env_overrides(name, env_name, pretrain)
     if name == "brax":
         config = brax_ppo_config(brax_task(env_name) or "inverted_pendulum", action_size)
         return config, env_overrides

@@ -293,3 +293,16 @@ def test_brax_sac_settings_convert_to_ddpg_by_hand():
     assert (row["num_envs"], row["batch_size"], row["grad_updates_per_step"]) == (16, 128, 32)
     with pytest.raises(KeyError, match="hopper, walker2d"):
         presets.brax_sac_ddpg_config("halfcheetah")
+
+
+def test_two_stage_fast_preset_env_settings_and_the_users_on_top():
+    """``--pretrain action-search`` under ``fast`` trains the unicycle at a_p = 1000 (the feed-forward
+    and LSTM policies at 300); ``--env-config`` still wins."""
+    import tyro
+
+    def settings(*extra):
+        return ppo_cli.env_settings(tyro.cli(ppo_cli.Args, args=["--env", "unicycle", "--preset", "fast", *extra]))
+
+    assert settings("--pretrain", "action-search") == {"a_p": 1000.0}
+    assert settings() == settings("--policy", "lstm") == {"a_p": 300.0}
+    assert settings("--pretrain", "action-search", "--env-config", "a_p=5") == {"a_p": 5}
