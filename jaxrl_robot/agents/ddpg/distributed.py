@@ -20,6 +20,9 @@ Where things live:
   lanes, split over the devices, that only act, each with its own noise processes (and, with
   ``collect_noise_factors``, its own noise scale) and its own copy of the actor, the critic and
   the observation statistics (:class:`Collectors`).
+* **Acting**: a device's synchronous and collecting lanes step as one batch
+  (``collect(..., split=n)``, each lane under its own worker's policy, the two kinds' episode sums
+  apart), so an iteration runs one env step per time step, as the single learner does.
 * **The global networks** (Algorithm 4) and **the shared replay** are replicated: every
   iteration's rows (synchronous lanes first, then collecting lanes, each in global lane order)
   are all-gathered and added on every device, so every device holds the same memory.
