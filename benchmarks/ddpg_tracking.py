@@ -59,7 +59,9 @@ def config_for(reference: str, method: str, args: argparse.Namespace, env: Any):
 def run_case(reference: str, method: str, args: argparse.Namespace) -> dict[str, Any]:
     """Train ``args.seeds`` agents of one method on one reference; their test-episode error sums."""
     env_name, settings = REFERENCES[reference]
-    env = envs_mjx.make(env_name, **{**ddpg_env_overrides(args.preset, env_name), **settings, **pairs(args.env_config)})
+    user = {**settings, **pairs(args.env_config)}
+    preset = ddpg_env_overrides(args.preset, env_name, method, user.get("trajectory"))
+    env = envs_mjx.make(env_name, **{**preset, **user})
     config = config_for(reference, method, args, env)
     trainer = make_trainer(config, env)
 

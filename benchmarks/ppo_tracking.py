@@ -40,7 +40,7 @@ def run_case(trajectory: str, method: str, args: argparse.Namespace) -> dict[str
     policy, pretrain = METHODS[method]
     probe = envs_mjx.make("unicycle", trajectory=trajectory)
     config, env_overrides = ppo_preset(args.preset, "unicycle", probe.episode_length, probe.action_size, policy,
-                                       pretrain)  # fmt: skip
+                                       pretrain, trajectory)  # fmt: skip
     env = envs_mjx.make("unicycle", **{**env_overrides, "trajectory": trajectory, **pairs(args.env_config)})
     config = config.replace(**pairs(args.set))
     if args.total_steps:

@@ -78,8 +78,18 @@ class Args(OffPolicyOptions):
 def env_settings(args: OffPolicyOptions) -> dict[str, Any]:
     """Env settings: the preset's (:func:`train.presets.ddpg_env_overrides`), then ``--reward``,
     ``--trajectory`` and ``--env-config KEY=VALUE``."""
-    trajectory = {} if args.trajectory is None else {"trajectory": args.trajectory}
-    return {**ddpg_env_overrides(args.preset, args.env), **trajectory, **common.env_overrides(args)}
+    user = {**({} if args.trajectory is None else {"trajectory": args.trajectory}), **common.env_overrides(args)}
+    return {**ddpg_env_overrides(args.preset, args.env, method_of(args), user.get("trajectory")), **user}
+
+
+def method_of(args: OffPolicyOptions) -> str:
+    """``ddpg``, ``distributed``, ``td3`` or ``distributed-td3``: the algorithm ``args`` configure."""
+    td3 = getattr(args, "td3", None)
+    config = td3 or getattr(args, "ddpg", None)
+    name = "td3" if td3 is not None else "ddpg"
+    if config is not None and config.distributed:
+        return "distributed" if name == "ddpg" else "distributed-td3"
+    return name
 
 
 def preset(args: OffPolicyOptions, env: Any, distributed: bool = False) -> DDPGConfig:

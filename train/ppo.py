@@ -44,7 +44,9 @@ class Args(common.RunOptions):
 
 def env_settings(args: Args) -> dict[str, Any]:
     """The preset's env options, then ``--reward`` and ``--env-config``."""
-    return {**ppo_env_overrides(args.preset, args.env, args.ppo.pretrain), **common.env_overrides(args)}
+    user = common.env_overrides(args)
+    preset = ppo_env_overrides(args.preset, args.env, args.ppo.pretrain, args.ppo.policy, user.get("trajectory"))
+    return {**preset, **user}
 
 
 def preset(args: Args, env: Any) -> PPOConfig:

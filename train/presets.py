@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import jax
 
+from envs_mjx.unicycle import UnicycleConfig
 from jaxrl_robot.agents.a2c import A2CConfig, A3CConfig
 from jaxrl_robot.agents.ddpg import DDPGConfig
 from jaxrl_robot.agents.ppo import PPOConfig
@@ -41,13 +42,14 @@ __all__ = [
     "ppo_env_overrides",
     "ddpg_env_overrides",
     "RACING_ENV",
-    "TWO_STAGE_A_P",
     "UNICYCLE_A_P",
+    "UNICYCLE_A_P_FAST",
     "lstm_variant",
     "ppo_preset",
     "resolve_preset",
     "two_stage_variant",
     "tracking_schedule",
+    "unicycle_a_p",
 ]
 
 PPO_PRESETS = ("auto", "thesis", "cpu", "fast", "brax")
@@ -198,9 +200,12 @@ def _family(env_name: str) -> str:
     return "other"
 
 
-def ppo_env_overrides(name: str, env_name: str, pretrain: str = "none") -> dict:
-    """Env settings a preset needs (the user's ``--env-config`` goes on top); ``pretrain``: PPO's
-    ``--pretrain`` (two-stage training has its own ``a_p`` under ``fast``, below).
+def ppo_env_overrides(
+    name: str, env_name: str, pretrain: str = "none", policy: str = "mlp", trajectory: str | None = None
+) -> dict:
+    """Env settings a preset needs (the user's ``--env-config`` goes on top); ``pretrain``,
+    ``policy``: PPO's ``--pretrain`` and ``--policy``; ``trajectory``: the unicycle's (None: the
+    env's default), which with them picks the unicycle's ``a_p`` (:func:`unicycle_a_p`).
 
     ``arm7`` under ``thesis`` and ``cpu`` runs in ``kinematic`` mode — the thesis's setting, and
     the one that is fast on a CPU: MJX's ``pd`` physics of the 7-link chain compiles and runs
@@ -213,33 +218,50 @@ def ppo_env_overrides(name: str, env_name: str, pretrain: str = "none") -> dict:
     At 30 M steps, 3 seeds, x / y / θ sums on the sine: 0.63 / 0.95 / 0.29 at a_p = 100, 0.32 /
     0.41 / 0.18 at 300; ellipse 0.47 / 0.29 / 0.55 and 0.33 / 0.24 / 0.36
     (``gpu-nvidia_h100_80gb_hbm3-tracking_sharper_rewards.md``).  ``cpu`` keeps 100 (300 not
-    measured there).  ``thesis`` keeps a_p = 1.  Two-stage training (``pretrain='action-search'``)
-    under ``fast`` uses a_p = 1000 (:data:`TWO_STAGE_A_P`): its 20 M-step PPO stage reached 0.64 /
-    1.79 / 0.56 on the sine at 300 and 0.39 / 0.77 / 0.22 at 1000, the ellipse 0.72 / 0.37 / 0.54
-    and 0.69 / 0.51 / 0.58 (``gpu-nvidia_h100_80gb_hbm3-tracking_ap1000.md``).  The LSTM keeps 300:
-    at 1000 its sine improved (1.49 / 1.22 / 0.33 → 0.78 / 0.37 / 0.13) but one ellipse seed of
-    three diverged (mean 1.71 / 1.53 / 0.70 against 0.46 / 0.44 / 0.29).
+    measured there).  ``thesis`` keeps a_p = 1.  Under ``fast`` the sine of two-stage training and
+    of the LSTM uses 1000 (:data:`UNICYCLE_A_P_FAST`).
     """
     name = resolve_preset(name)
     if _family(env_name) == "arm" and name in ("thesis", "cpu"):
         return {"mode": "kinematic"}
-    if env_name.split(":")[-1] == "unicycle" and name in ("cpu", "fast"):
-        if pretrain == "action-search" and name in TWO_STAGE_A_P:
-            return {"a_p": TWO_STAGE_A_P[name]}
-        return {"a_p": UNICYCLE_A_P[name]}
+    if env_name.split(":")[-1] == "unicycle" and name in UNICYCLE_A_P:
+        method = "two-stage" if pretrain == "action-search" else policy
+        return {"a_p": unicycle_a_p(name, method, trajectory)}
     return {}
 
 
 UNICYCLE_A_P = {"cpu": 100.0, "fast": 300.0}
 """Eq. 3.23's ``a_p`` of the unicycle under the ``cpu`` and ``fast`` presets (every algorithm; see
-:func:`ppo_env_overrides` and :func:`ddpg_env_overrides` for the measurements)."""
+:func:`ppo_env_overrides` and :func:`ddpg_env_overrides` for the measurements), except
+:data:`UNICYCLE_A_P_FAST`."""
 
-TWO_STAGE_A_P = {"fast": 1000.0}
-"""The unicycle's ``a_p`` for PPO's two-stage training under these presets (else :data:`UNICYCLE_A_P`)."""
+UNICYCLE_A_P_FAST = {("two-stage", "sine"): 1000.0, ("lstm", "sine"): 1000.0, ("distributed", "sine"): 1000.0}
+"""``(method, trajectory) -> a_p`` under ``fast`` where 1000 tracked better than 300 (H100, 3 seeds,
+x / y / θ sums; ``gpu-nvidia_h100_80gb_hbm3-tracking_ap1000.md`` and ``…-tracking_sharper_rewards.md``):
+
+* two-stage (20 M PPO steps), sine: 0.64 / 1.79 / 0.56 at 300, 0.39 / 0.77 / 0.22 at 1000; on the
+  ellipse 0.72 / 0.37 / 0.54 and 0.69 / 0.51 / 0.58, so the ellipse keeps 300;
+* LSTM (60 M steps), sine: 1.49 / 1.22 / 0.33 and 0.78 / 0.37 / 0.13; on the ellipse one seed of
+  three diverged at 1000 (mean 1.71 / 1.53 / 0.70 against 0.46 / 0.44 / 0.29 at 300);
+* distributed DDPG, sine: 0.59 / 0.73 / 0.51 and 0.45 / 0.40 / 0.31 (the ellipse not measured at 1000).
+
+Feed-forward PPO stays at 300 (sine 0.32 / 0.41 / 0.18 at 300, 0.38 / 0.52 / 0.18 at 1000); DDPG
+and TD3 were not measured at 1000."""
+
+
+def unicycle_a_p(name: str, method: str, trajectory: str | None = None) -> float:
+    """The unicycle's ``a_p`` under preset ``name`` (``cpu`` or ``fast``) for ``method`` (PPO's
+    ``mlp``, ``lstm``, ``two-stage``; ``ddpg``, ``distributed``, ``td3``, ``distributed-td3``) on
+    ``trajectory`` (None: the env's default)."""
+    trajectory = trajectory or UnicycleConfig.trajectory
+    if name == "fast":
+        return UNICYCLE_A_P_FAST.get((method, trajectory), UNICYCLE_A_P[name])
+    return UNICYCLE_A_P[name]
 
 
 def ppo_preset(
-    name: str, env_name: str, episode_length: int, action_size: int, policy: str = "mlp", pretrain: str = "none"
+    name: str, env_name: str, episode_length: int, action_size: int, policy: str = "mlp", pretrain: str = "none",
+    trajectory: str | None = None,
 ) -> tuple[PPOConfig, dict]:
     """``(PPOConfig, env overrides)`` of preset ``name`` for ``env_name`` (overrides: :func:`ppo_env_overrides`).
 
@@ -250,8 +272,10 @@ def ppo_preset(
       action_size: the env's action dimension (sizes σ for envs without a thesis value).
       policy: ``'lstm'``: the recurrent variant (:func:`lstm_variant`).
       pretrain: ``'action-search'``: two-stage training (:func:`two_stage_variant`).
+      trajectory: the unicycle's trajectory for the env overrides (None: the env's default).
     """
-    config, env_overrides = _ppo_base_preset(name, env_name, episode_length, action_size, pretrain)
+    env_overrides = ppo_env_overrides(resolve_preset(name, env_name), env_name, pretrain, policy, trajectory)
+    config, _ = _ppo_base_preset(name, env_name, episode_length, action_size)
     if policy == "lstm":
         config = lstm_variant(config, resolve_preset(name), _family(env_name))
     if pretrain != "none":
@@ -285,13 +309,11 @@ def two_stage_variant(config: PPOConfig, name: str, episode_length: int) -> PPOC
     return config.replace(pretrain_episodes=200, total_steps=pretrain + (2 * config.total_steps) // 3)
 
 
-def _ppo_base_preset(
-    name: str, env_name: str, episode_length: int, action_size: int, pretrain: str = "none"
-) -> tuple[PPOConfig, dict]:
+def _ppo_base_preset(name: str, env_name: str, episode_length: int, action_size: int) -> tuple[PPOConfig, dict]:
     """The feed-forward PPO preset (see :func:`ppo_preset`)."""
     name = resolve_preset(name, env_name)
     family = _family(env_name)
-    env_overrides = ppo_env_overrides(name, env_name, pretrain)
+    env_overrides = ppo_env_overrides(name, env_name)
     if name == "brax":
         config = brax_ppo_config(brax_task(env_name) or "inverted_pendulum", action_size)
         return config, env_overrides
@@ -444,15 +466,17 @@ on train / test1 / test2 / test3: TD3 trained on the training road alone 11.7 / 
 bank 11.0 / 15.3 / 11.7 / 15.3; with the offsets and the end at a collision 16.0 / 16.7 / 15.3 / 18.0."""
 
 
-def ddpg_env_overrides(name: str, env_name: str) -> dict:
+def ddpg_env_overrides(name: str, env_name: str, method: str = "ddpg", trajectory: str | None = None) -> dict:
     """Env settings a DDPG preset needs (the user's ``--env-config`` goes on top): a sharper reward.
+    ``method`` (``ddpg``, ``distributed``, ``td3``, ``distributed-td3``) and ``trajectory`` pick the
+    unicycle's ``a_p`` (:func:`unicycle_a_p`).
 
     ``unicycle``: the sharper position term of :func:`ppo_env_overrides` (:data:`UNICYCLE_A_P`), for
     the same reason.  CPU, sine, seed 0, ``cpu`` preset: x / y / θ sums 7.75 / 5.75 / 2.22 at Eq.
     3.23's a_p = 1, 1.43 / 1.13 / 0.83 at a_p = 100 (``cpu-2core-ddpg_tracking.md``).  H100, ``fast``,
     3 seeds, ``ddpg``: sine 1.08 / 0.95 / 0.85 at 100, 0.60 / 0.71 / 0.57 at 300; ellipse 1.79 / 2.68
     / 1.96 and 0.63 / 0.72 / 0.76.  Distributed on the sine: 0.98 / 1.30 / 0.83 at 100, 0.59 / 0.73 /
-    0.51 at 300, 0.45 / 0.40 / 0.31 at 1000 (1000 not measured on the ellipse, so not the preset).
+    0.51 at 300, 0.45 / 0.40 / 0.31 at 1000, its sine's preset (:data:`UNICYCLE_A_P_FAST`).
     ``scara``: ``cpu`` Eq. 3.22's coefficient 50 instead of 2; ``fast`` 1000 and the ``extended``
     observation (the error to the next reference point).  H100, ``fast``, 3 seeds, x / y / z sums:
     ``ddpg`` 4.26 / 4.38 / 3.26 at 2, 1.73 / 2.10 / 1.95 at 50, 1.29 / 1.10 / 1.51 at 50 extended,
@@ -465,7 +489,7 @@ def ddpg_env_overrides(name: str, env_name: str) -> dict:
     if name not in ("cpu", "fast"):
         return {}
     scara = {"cpu": {"reward_coef": 50.0}, "fast": {"reward_coef": 1000.0, "observation": "extended"}}[name]
-    sharper = {"unicycle": {"a_p": UNICYCLE_A_P[name]}, "scara": scara, "racecar": RACING_ENV}
+    sharper = {"unicycle": {"a_p": unicycle_a_p(name, method, trajectory)}, "scara": scara, "racecar": RACING_ENV}
     return sharper.get(env_name.split(":")[-1], {})
 
 

@@ -291,8 +291,14 @@ def test_presets_of_the_variants_are_valid_and_follow_the_thesis(name):
     assert two.total_steps == 200 * 314 + 2 * mlp.total_steps // 3
     # the unicycle trains with a sharper position term except under the thesis preset (Eq. 3.23 as is)
     assert ppo_env_overrides(name, "unicycle") == {"thesis": {}, "cpu": {"a_p": 100.0}, "fast": {"a_p": 300.0}}[name]
-    assert ppo_preset(name, "unicycle", 314, 2, policy="lstm")[1] == ppo_env_overrides(name, "unicycle")
-    # two-stage under fast: a_p = 1000 (its sine misses the goal at 300); the other presets as above
-    two_stage = {"thesis": {}, "cpu": {"a_p": 100.0}, "fast": {"a_p": 1000.0}}[name]
-    assert ppo_env_overrides(name, "unicycle", "action-search") == two_stage
-    assert ppo_preset(name, "unicycle", 314, 2, pretrain="action-search")[1] == two_stage
+    # two-stage and the LSTM on the sine under fast: a_p = 1000 (both miss the goal there at 300); the
+    # ellipse and the other presets as above
+    sharper = {"thesis": {}, "cpu": {"a_p": 100.0}, "fast": {"a_p": 1000.0}}[name]
+    plain = ppo_env_overrides(name, "unicycle")
+    assert ppo_env_overrides(name, "unicycle", "action-search") == ppo_env_overrides(name, "unicycle", policy="lstm")
+    assert ppo_env_overrides(name, "unicycle", policy="lstm", trajectory="sine") == sharper
+    assert ppo_preset(name, "unicycle", 314, 2, policy="lstm")[1] == sharper
+    for variant in ({"policy": "lstm"}, {"pretrain": "action-search"}):
+        assert ppo_env_overrides(name, "unicycle", trajectory="ellipse", **variant) == plain
+        assert ppo_preset(name, "unicycle", 160, 2, trajectory="ellipse", **variant)[1] == plain
+    assert ppo_preset(name, "unicycle", 314, 2, pretrain="action-search")[1] == sharper

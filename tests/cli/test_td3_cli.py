@@ -55,6 +55,10 @@ def test_tracking_presets_sharpen_the_reward_and_env_config_wins(cli):
     assert env_of("--env", "scara", "--preset", "cpu").config.reward_coef == 50.0
     assert env_of("--env", "scara", "--preset", "thesis").config.reward_coef == 2.0
     assert env_of("--env", "unicycle", "--preset", "fast").config.a_p == 300.0
+    # distributed DDPG on the sine under fast: a_p = 1000 (measured better there); its ellipse and TD3 keep 300
+    distributed = ("--env", "unicycle", "--preset", "fast", "--distributed", "--total-steps", "64")
+    assert env_of(*distributed).config.a_p == (1000.0 if cli is ddpg_cli else 300.0)
+    assert env_of(*distributed, "--trajectory", "ellipse").config.a_p == 300.0
     fast = env_of("--env", "scara", "--preset", "fast")
     assert (fast.config.reward_coef, fast.config.observation, fast.observation_size) == (1000.0, "extended", 13)
     assert env_of("--env", "scara", "--preset", "thesis").config.observation == "thesis"
