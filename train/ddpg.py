@@ -82,11 +82,15 @@ def env_settings(args: OffPolicyOptions) -> dict[str, Any]:
     return {**ddpg_env_overrides(args.preset, args.env, method_of(args), user.get("trajectory")), **user}
 
 
+def algo_config(args: OffPolicyOptions) -> DDPGConfig | None:
+    """The :class:`DDPGConfig` of ``args`` (``args.ddpg`` or ``args.td3``; None for bare options)."""
+    return getattr(args, "ddpg", None) or getattr(args, "td3", None)
+
+
 def method_of(args: OffPolicyOptions) -> str:
     """``ddpg``, ``distributed``, ``td3`` or ``distributed-td3``: the algorithm ``args`` configure."""
-    td3 = getattr(args, "td3", None)
-    config = td3 or getattr(args, "ddpg", None)
-    name = "td3" if td3 is not None else "ddpg"
+    name = "td3" if getattr(args, "td3", None) is not None else "ddpg"
+    config = algo_config(args)
     if config is not None and config.distributed:
         return "distributed" if name == "ddpg" else "distributed-td3"
     return name
@@ -96,7 +100,7 @@ def preset(args: OffPolicyOptions, env: Any, distributed: bool = False) -> DDPGC
     """The :class:`DDPGConfig` of ``args.preset`` for ``env`` and its reward (the env's default if not given);
     its distributed variant with ``distributed``."""
     reward = args.reward or getattr(getattr(env, "config", None), "reward", None)
-    her = getattr(getattr(args, "ddpg", None) or getattr(args, "td3", None), "her", "none")
+    her = getattr(algo_config(args), "her", "none")
     return ddpg_preset(args.preset, args.env, common.episode_length(env), reward, distributed=distributed, her=her)
 
 

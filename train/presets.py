@@ -275,7 +275,7 @@ def ppo_preset(
       trajectory: the unicycle's trajectory for the env overrides (None: the env's default).
     """
     env_overrides = ppo_env_overrides(resolve_preset(name, env_name), env_name, pretrain, policy, trajectory)
-    config, _ = _ppo_base_preset(name, env_name, episode_length, action_size)
+    config = _ppo_base_preset(name, env_name, episode_length, action_size)
     if policy == "lstm":
         config = lstm_variant(config, resolve_preset(name), _family(env_name))
     if pretrain != "none":
@@ -309,14 +309,12 @@ def two_stage_variant(config: PPOConfig, name: str, episode_length: int) -> PPOC
     return config.replace(pretrain_episodes=200, total_steps=pretrain + (2 * config.total_steps) // 3)
 
 
-def _ppo_base_preset(name: str, env_name: str, episode_length: int, action_size: int) -> tuple[PPOConfig, dict]:
+def _ppo_base_preset(name: str, env_name: str, episode_length: int, action_size: int) -> PPOConfig:
     """The feed-forward PPO preset (see :func:`ppo_preset`)."""
     name = resolve_preset(name, env_name)
     family = _family(env_name)
-    env_overrides = ppo_env_overrides(name, env_name)
     if name == "brax":
-        config = brax_ppo_config(brax_task(env_name) or "inverted_pendulum", action_size)
-        return config, env_overrides
+        return brax_ppo_config(brax_task(env_name) or "inverted_pendulum", action_size)
     if family == "arm":
         # Table 5.2 and §5.4: 2 x 200 nets, batch-norm actor, σ = [0.8, 0.8, 0.1].
         base = PPOConfig(
@@ -384,7 +382,7 @@ def _ppo_base_preset(name: str, env_name: str, episode_length: int, action_size:
                          total_steps=10_000_000),
         }
     config = base.replace(**presets[name])
-    return (_precise(config) if _precise_arm(env_name) else config), env_overrides
+    return _precise(config) if _precise_arm(env_name) else config
 
 
 def _precise_arm(env_name: str) -> bool:

@@ -219,13 +219,7 @@ def make_distributed_trainer(config: DDPGConfig, env: Env, **options: Any) -> Tr
         key, k_act, k_learn = jax.random.split(state.key, 3)
         factor = core.noise_factor(config, state.iteration)
         policy = s.acting.policy(ids["lanes"], state.actor_params, state.obs_stats, factor)
-        extra = {}
-        if not C:
-            got = s.acting.collect(k_act, ids["lanes"], policy, state.env_state, state.noise_state)
-            prio = priorities(copies_of(state, 1), got.rows, 1) if config.per else None
-            (rows, prio), mask = s.acting.gather((got.rows, prio), got.mask)
-            state = state.replace(env_state=got.env_state, noise_state=got.noise_state)
-        else:
+        if C:
             # Both kinds of worker step as one batch of lanes (one env step per time step, not
             # two); lane ids, and so every lane's randomness, are as if each kind acted alone.
             col, staleness = fetch(state, ids["collectors"])
@@ -233,19 +227,22 @@ def make_distributed_trainer(config: DDPGConfig, env: Env, **options: Any) -> Tr
             factors = factors if factor is None else factors * factor
             n = s.local_lanes
             both = both_policy(policy, group_policy(ids["collect_lanes"], col, factors), n)
-            (env_state, noise_state) = _concat((state.env_state, state.noise_state), (col.env_state, col.noise_state))
+            env_state, noise_state = _concat((state.env_state, state.noise_state), (col.env_state, col.noise_state))
             both_got = s.acting.collect(k_act, jnp.concatenate([ids["lanes"], ids["collect_lanes"]]), both,
                                         env_state, noise_state, split=n)  # fmt: skip
             got, col_got = _split_collected(both_got, n)
-            prio = priorities(copies_of(state, 1), got.rows, 1) if config.per else None
-            (rows, prio), mask = s.acting.gather((got.rows, prio), got.mask)
+        else:
+            got = s.acting.collect(k_act, ids["lanes"], policy, state.env_state, state.noise_state)
+        prio = priorities(copies_of(state, 1), got.rows, 1) if config.per else None
+        (rows, prio), mask = s.acting.gather((got.rows, prio), got.mask)
+        state = state.replace(env_state=got.env_state, noise_state=got.noise_state)
+        extra = {}
+        if C:
             copies = (col.actor_params, col.critic_params, col.obs_stats)
             col_prio = priorities(copies, col_got.rows, local_collectors) if config.per else None
             (col_rows, col_prio), col_mask = s.acting.gather((col_got.rows, col_prio), col_got.mask)
-            rows, prio, mask = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), (rows, prio, mask),
-                                            (col_rows, col_prio, col_mask))
-            state = state.replace(env_state=got.env_state, noise_state=got.noise_state,
-                                  collectors=col.replace(env_state=col_got.env_state, noise_state=col_got.noise_state))
+            rows, prio, mask = _concat((rows, prio, mask), (col_rows, col_prio, col_mask))
+            state = state.replace(collectors=col.replace(env_state=col_got.env_state, noise_state=col_got.noise_state))
             extra = {"episodes": col_got.sums, "staleness": parallel.all_gather(staleness)}
         state = core.store(s, state, rows, mask, prio)
         state, sums, count = s.learner.learn(state, k_learn, s.updates_per_iteration, worker_shards(ids["workers"]))
