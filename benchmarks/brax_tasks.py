@@ -35,6 +35,8 @@ Goals: per task our return ≥ brax's and our wall per seed ≤ brax's. Results:
 from __future__ import annotations
 
 import argparse
+import json
+import math
 import os
 import time
 from typing import Any
@@ -65,6 +67,15 @@ def brax_row(task: str, num_envs: int, algo: str = "ppo") -> dict[str, float]:
             row["batch_size"] = max(1, int(row["batch_size"] * num_envs) // int(row["num_envs"]))
         row["num_envs"] = num_envs
     return row
+
+
+def brax_ppo_steps(row: dict[str, float], steps: int, num_evals: int = 10) -> int:
+    """The env steps brax's ``ppo.train`` makes of a ``steps`` budget: whole training steps of
+    ``batch_size · num_minibatches · unroll_length`` env steps, ``ceil`` of the budget over ``num_evals − 1``
+    epochs of them (brax/training/agents/ppo/train.py), so never fewer than ``steps``."""
+    per_step = int(row["batch_size"]) * int(row["num_minibatches"]) * int(row["unroll_length"])
+    epochs = max(num_evals - 1, 1)
+    return epochs * per_step * math.ceil(steps / (epochs * per_step))
 
 
 def our_trainer(algo: str, task: str, env: Any, row: dict[str, float], steps: int) -> tuple[Trainer, int]:
@@ -131,7 +142,9 @@ def to_markdown(result: dict[str, Any]) -> str:
            f"(`train.presets.{table}`). Return: our deterministic "
            "policy on fresh episodes (ours: "
            f"{result['eval_episodes']} episodes; brax: its own final evaluation). Wall: compilation included. "
-           "Bold: at the goal (our return ≥ brax's; our wall per seed ≤ brax's).", "",
+           "Bold: at the goal (our return ≥ brax's; our wall per seed ≤ brax's)."
+           + (f" Merged from {len(result['merged_from'])} invocations (`--merge`; each one's provenance below)."
+              if result.get("merged_from") else ""), "",
            "| task | env steps | brax return | our return | brax wall per seed s | our wall per seed s "
            "| brax env steps/s | our env steps/s | our / brax return |",
            "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
@@ -176,12 +189,20 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--row", nargs="*", default=[], metavar="KEY=VALUE",
                    help="settings of both trainers in brax's terms over the task's row (e.g. min_replay_size=1024)")
     p.add_argument("--no-brax", action="store_true", help="ours only")
+    p.add_argument("--no-ours", action="store_true", help="brax's only (e.g. on another GPU, then --merge)")
+    p.add_argument("--merge", nargs="+", default=None, metavar="JSON",
+                   help="write one report from results files of this benchmark (e.g. ours and brax's run on two "
+                   "GPUs at once): per task, our side and brax's from the files that ran them")  # fmt: skip
     p.add_argument("--seed-map", default="loop", choices=["loop", "vmap"],
                    help="our seeds: one program called per seed, or one vmapped program (XLA's CPU compiler "
                    "stops with a floating point exception on the vmapped MJX program, jax 0.10.2)")  # fmt: skip
     p.add_argument("--out", default=RESULTS)
     provenance.add_args(p)
     args = p.parse_args(argv)
+    if args.merge:
+        return merge(args.merge, args.out, argv)
+    if args.no_brax and args.no_ours:
+        p.error("--no-brax and --no-ours: nothing would run; give at most one")
     table = ALGOS[args.algo][2]
     args.tasks = args.tasks or list(table)
     unknown = [t for t in args.tasks if t not in table]
@@ -203,18 +224,73 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         env = brax_envs.get_environment(task, backend=args.backend)
         steps = args.steps or int(table[task]["num_timesteps"])
         settings = {**brax_row(task, args.num_envs, args.algo), **pairs(args.row)}
-        row = {"task": task, "settings": settings,
-               "ours": ours(env, task, settings, steps, args.seeds, args.eval_episodes, args.seed_map, args.algo)}
-        print(task, "ours", [round(r, 1) for r in row["ours"]["returns"]], f"{row['ours']['wall_s']:.0f} s", flush=True)
+        our_steps = brax_ppo_steps(settings, steps) if args.algo == "ppo" else steps  # brax's count: equal steps
+        row = {"task": task, "settings": settings, "sides": []}
+        if not args.no_ours:
+            row["ours"] = ours(env, task, settings, our_steps, args.seeds, args.eval_episodes, args.seed_map,
+                               args.algo)  # fmt: skip
+            row["sides"].append("ours")
+            print(task, "ours", [round(r, 1) for r in row["ours"]["returns"]], f"{row['ours']['wall_s']:.0f} s",
+                  flush=True)  # fmt: skip
         if not args.no_brax:
             row["brax"] = theirs(env, settings, steps, brax_seeds, ALGOS[args.algo][1])
+            row["sides"].append("brax")
             print(task, "brax", [round(r, 1) for r in row["brax"]["returns"]], f"{row['brax']['wall_s']:.0f} s",
                   flush=True)  # fmt: skip
-        else:
-            row["brax"] = {**row["ours"], "returns": [float("nan")] * args.seeds, "curves": []}
-        figure(row, result["figures"])
         result["tasks"].append(row)
-        provenance.write(stem, result, to_markdown(result), echo=task == args.tasks[-1])
+        write(stem, result, echo=task == args.tasks[-1])
+    return result
+
+
+def missing(side: dict[str, Any]) -> dict[str, Any]:
+    """A side that did not run: NaN returns, no curves, the other side's steps (for the table's columns)."""
+    return {**side, "returns": [float("nan")], "curves": [], "wall_s": float("nan"),
+            "wall_per_seed_s": float("nan"), "env_steps_per_s": float("nan")}  # fmt: skip
+
+
+def write(stem: str, result: dict[str, Any], earlier: list[dict[str, Any]] = (), echo: bool = False) -> str:
+    """The figures of every task and ``stem.json`` / ``stem.md``; a side that did not run shows as NaN."""
+    os.makedirs(result["figures"], exist_ok=True)
+    shown = dict(result, tasks=[])
+    for row in result["tasks"]:
+        shown_row = dict(row)
+        for side, other in (("ours", "brax"), ("brax", "ours")):
+            if side not in row:
+                shown_row[side] = missing(row[other])
+        figure(shown_row, result["figures"])
+        shown["tasks"].append(shown_row)
+    return provenance.write(stem, result, to_markdown(shown), earlier=list(earlier), echo=echo)
+
+
+def merge(paths: list[str], out: str, argv: list[str] | None = None) -> dict[str, Any]:
+    """One report of several results files of one algorithm: per task (in the order first seen), our side
+    from the last file that ran ours and brax's from the last that ran brax's; their provenance records
+    come first in the new file's, then the merge's own."""
+    parts = []
+    for path in paths:
+        with open(path) as f:
+            parts.append(json.load(f))
+    algos = {part.get("algo", "ppo") for part in parts}
+    if len(algos) != 1:
+        raise SystemExit(f"--merge: the files are of different algorithms ({', '.join(sorted(algos))}); give one's")
+    first = parts[0]
+    tasks: dict[str, dict[str, Any]] = {}
+    for part in parts:
+        for row in part["tasks"]:
+            merged = tasks.setdefault(row["task"], {"task": row["task"], "settings": row["settings"], "sides": []})
+            for side in row.get("sides", ("ours", "brax")):
+                merged[side] = row[side]
+                merged["sides"] = sorted(set(merged["sides"]) | {side}, reverse=True)
+    for part, path in zip(parts, paths, strict=True):
+        part["provenance"].setdefault("note", f"merged from {os.path.basename(path)}")
+    stem = f"{out}/{first['device']}-brax_tasks" + ("" if first.get("algo", "ppo") == "ppo" else f"-{first['algo']}")
+    prov = provenance.record("benchmarks.brax_tasks", argv, device_info=first["provenance"]["device"],
+                             seeds="as in the invocations above",
+                             note="this file merges the results files of the invocations above")  # fmt: skip
+    result = {**first, "tasks": list(tasks.values()), "figures": stem + "-figures", "merged_from": paths,
+              "seeds": max(p["seeds"] for p in parts), "brax_seeds": max(p["brax_seeds"] for p in parts),
+              "provenance": prov, "sources": [p["provenance"] for p in parts]}  # fmt: skip
+    write(stem, result, earlier=result["sources"], echo=True)
     return result
 
 

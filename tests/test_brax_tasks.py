@@ -1,0 +1,58 @@
+"""benchmarks.brax_tasks without training: brax's step count by hand, and one report merged from an
+invocation that ran our side alone and one that ran brax's alone."""
+
+from __future__ import annotations
+
+import json
+
+from benchmarks import brax_tasks, provenance
+from train.presets import BRAX_PPO
+
+
+def test_our_ppo_trains_brax_s_count_of_env_steps_by_hand():
+    """inverted_pendulum: a training step is 1024 · 32 · 5 = 163 840 env steps; 2 M over 9 epochs is
+    1.36 → 2 steps per epoch, so brax trains 9 · 2 · 163 840 = 2 949 120 (as its run reported)."""
+    assert brax_tasks.brax_ppo_steps(BRAX_PPO["inverted_pendulum"], 2_000_000) == 2_949_120
+    assert brax_tasks.brax_ppo_steps(BRAX_PPO["inverted_pendulum"], 9 * 163_840) == 9 * 163_840  # exact: unchanged
+    # halfcheetah: 512 · 32 · 20 = 327 680 per step; 50 M / (9 · 327 680) = 16.95 → 17
+    assert brax_tasks.brax_ppo_steps(BRAX_PPO["halfcheetah"], 50_000_000) == 9 * 17 * 327_680
+
+
+def _part(tmp_path, name, side, returns, wall):
+    """A results file of one invocation that ran only ``side`` on inverted_pendulum."""
+    run = {"returns": returns, "wall_s": wall * len(returns), "wall_per_seed_s": wall, "env_steps": 300,
+           "env_steps_per_s": 300 * len(returns) / (wall * len(returns)), "curve_steps": [100, 200, 300],
+           "curves": [[1.0, 2.0, r] for r in returns]}  # fmt: skip
+    prov = provenance.record("benchmarks.brax_tasks", [name], device_info={"name": "X", "platform": "gpu"})
+    part = {"benchmark": "brax_tasks", "algo": "ppo", "provenance": prov, "device": "gpu-x", "backend": "mjx",
+            "seeds": len(returns), "seed_map": "vmap", "brax_seeds": len(returns), "eval_episodes": 8,
+            "figures": str(tmp_path / name), "tasks": [{"task": "inverted_pendulum", "settings": {}, "sides": [side],
+                                                         side: run}]}  # fmt: skip
+    path = tmp_path / f"{name}.json"
+    path.write_text(json.dumps(part))
+    return str(path)
+
+
+def test_merge_takes_each_side_from_the_invocation_that_ran_it(tmp_path):
+    ours = _part(tmp_path, "ours", "ours", [1000.0, 990.0, 980.0], 10.0)
+    brax = _part(tmp_path, "brax", "brax", [900.0, 1000.0, 950.0], 50.0)
+    out = tmp_path / "out"
+    result = brax_tasks.main(["--merge", ours, brax, "--out", str(out)])
+    (row,) = result["tasks"]
+    assert row["sides"] == ["ours", "brax"] and row["ours"]["returns"] == [1000.0, 990.0, 980.0]
+    assert row["brax"]["returns"] == [900.0, 1000.0, 950.0]
+    md = (out / "gpu-x-brax_tasks.md").read_text()
+    # ours 990.0 ± 8.2 ≥ brax 950.0 ± 40.8 (bold: at the goal), wall per seed 10 ≤ 50 (bold), ratio 990 / 950
+    assert "| inverted_pendulum | 300 | 950.0 ± 40.8 | **990.0 ± 8.2** | 50 | **10** | 6 | 30 | 1.04 |" in md
+    assert "Invocation 3 of 3" in md and "Merged from 2 invocations" in md
+    assert (out / "gpu-x-brax_tasks-figures" / "inverted_pendulum.png").exists()
+    saved = json.loads((out / "gpu-x-brax_tasks.json").read_text())
+    assert [s["command"].split()[-1] for s in saved["sources"]] == ["ours", "brax"]
+
+
+def test_an_invocation_of_one_side_reports_the_other_as_not_run(tmp_path):
+    ours = _part(tmp_path, "ours", "ours", [1000.0], 10.0)
+    result = brax_tasks.main(["--merge", ours, "--out", str(tmp_path / "out")])
+    assert "brax" not in result["tasks"][0]
+    md = (tmp_path / "out" / "gpu-x-brax_tasks.md").read_text()
+    assert "| inverted_pendulum | 300 | nan ± nan | 1000.0 ± 0.0 | nan | 10 |" in md
