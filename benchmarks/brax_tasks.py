@@ -39,6 +39,7 @@ import json
 import math
 import os
 import time
+from collections.abc import Callable
 from typing import Any
 
 import jax
@@ -120,12 +121,23 @@ def ours(env: Any, task: str, row: dict[str, float], steps: int, seeds: int, eva
             "curve_steps": done.tolist(), "curves": per_chunk.tolist()}  # fmt: skip
 
 
-def theirs(env: Any, row: dict[str, float], steps: int, seeds: int, peer: str = "ppo") -> dict[str, Any]:
+def theirs(env: Any, row: dict[str, float], steps: int, seeds: int, peer: str = "ppo",
+           done: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:  # fmt: skip
     """brax's ``ppo.train`` (``peer='sac'``: ``sac.train``) with the task's ``row`` (brax's terms), one seed
-    after another."""
+    after another; ``done`` is called with the record of the seeds so far after each one."""
     from benchmarks.peers.brax_ppo import train_published
 
-    runs = [train_published(env, row, steps, seed, peer) for seed in range(seeds)]
+    runs = []
+    for seed in range(seeds):
+        runs.append(train_published(env, row, steps, seed, peer))
+        record = summary(runs)
+        if done is not None:
+            done(record)
+    return record
+
+
+def summary(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """The record of brax's runs (one per seed) as the report reads it."""
     walls = [r["wall_s"] for r in runs]
     return {"returns": [r["final_return"] for r in runs], "wall_s": float(sum(walls)),
             "wall_per_seed_s": float(np.mean(walls)), "env_steps": runs[0]["env_steps"],
@@ -154,7 +166,9 @@ def to_markdown(result: dict[str, Any]) -> str:
         won, fast = ro >= rb, o["wall_per_seed_s"] <= b["wall_per_seed_s"]
         cell = f"{ro:.1f} ± {np.std(o['returns']):.1f}"
         wall = f"{o['wall_per_seed_s']:.0f}"
-        out.append(f"| {t['task']} | {o['env_steps']:,} | {rb:.1f} ± {np.std(b['returns']):.1f} "
+        short = len(b["returns"]) < result["brax_seeds"] and not np.isnan(rb)  # a killed run: the seeds it finished
+        seeds_done = f" ({len(b['returns'])} of {result['brax_seeds']} seeds)" if short else ""
+        out.append(f"| {t['task']} | {o['env_steps']:,} | {rb:.1f} ± {np.std(b['returns']):.1f}{seeds_done} "
                    f"| {'**' + cell + '**' if won else cell} | {b['wall_per_seed_s']:.0f} "
                    f"| {'**' + wall + '**' if fast else wall} | {b['env_steps_per_s']:,.0f} "
                    f"| {o['env_steps_per_s']:,.0f} | {ro / rb if rb else float('nan'):.2f} |")  # fmt: skip
@@ -233,8 +247,15 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             print(task, "ours", [round(r, 1) for r in row["ours"]["returns"]], f"{row['ours']['wall_s']:.0f} s",
                   flush=True)  # fmt: skip
         if not args.no_brax:
-            row["brax"] = theirs(env, settings, steps, brax_seeds, ALGOS[args.algo][1])
             row["sides"].append("brax")
+            result["tasks"].append(row)
+
+            def partial(record: dict[str, Any], row: dict[str, Any] = row) -> None:  # a killed run keeps its seeds
+                row["brax"] = record
+                write(stem, result)
+
+            row["brax"] = theirs(env, settings, steps, brax_seeds, ALGOS[args.algo][1], partial)
+            result["tasks"].pop()
             print(task, "brax", [round(r, 1) for r in row["brax"]["returns"]], f"{row['brax']['wall_s']:.0f} s",
                   flush=True)  # fmt: skip
         result["tasks"].append(row)

@@ -56,3 +56,15 @@ def test_an_invocation_of_one_side_reports_the_other_as_not_run(tmp_path):
     assert "brax" not in result["tasks"][0]
     md = (tmp_path / "out" / "gpu-x-brax_tasks.md").read_text()
     assert "| inverted_pendulum | 300 | nan ± nan | 1000.0 ± 0.0 | nan | 10 |" in md
+
+
+def test_a_killed_brax_run_keeps_the_seeds_it_finished(tmp_path):
+    """brax's side is written after each seed: a file with 1 of 3 seeds says so in the table."""
+    brax = _part(tmp_path, "brax", "brax", [900.0], 50.0)
+    result = brax_tasks.main(["--merge", brax, "--out", str(tmp_path / "out")])
+    assert result["brax_seeds"] == 1
+    part = json.loads(open(brax).read())
+    part["brax_seeds"] = 3
+    open(brax, "w").write(json.dumps(part))
+    brax_tasks.main(["--merge", brax, "--out", str(tmp_path / "out")])
+    assert "| 900.0 ± 0.0 (1 of 3 seeds) |" in (tmp_path / "out" / "gpu-x-brax_tasks.md").read_text()

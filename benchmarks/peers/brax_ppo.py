@@ -130,6 +130,8 @@ def train_published(
     def progress(step: int, metrics: dict) -> None:
         if "eval/episode_reward" in metrics:
             evals.append((int(step), float(metrics["eval/episode_reward"])))
+            print(f"  brax {algo} seed {seed}: {int(step):,} env steps, eval return {evals[-1][1]:.1f}, "
+                  f"{time.perf_counter() - t0:.0f} s", flush=True)  # fmt: skip
 
     t0 = time.perf_counter()
     trainer.train(
