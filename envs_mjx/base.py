@@ -46,6 +46,7 @@ from envs_mjx.config import apply_overrides
 
 __all__ = [
     "AutoResetWrapper",
+    "ClipActionWrapper",
     "EpisodeWrapper",
     "PoolResetWrapper",
     "RobotEnv",
@@ -134,6 +135,23 @@ class _ParamWrapper(Wrapper):
 
     def reset(self, rng: jax.Array, params: Any = None) -> State:  # noqa: D102
         return _reset(self.env, rng, params)
+
+
+class ClipActionWrapper(_ParamWrapper):
+    """Actions clipped to ``[low, high]`` before the env steps (unbatched or batched).
+
+    For envs that take the action as given, e.g. brax's, whose control cost squares the raw action:
+    a Gaussian policy's sample then costs what it would move the robot, not more. The policy keeps its
+    unclipped sample for its log-probability (as Stable-Baselines3 clips a Gaussian's actions)."""
+
+    def __init__(self, env: Env, low: float = -1.0, high: float = 1.0):
+        super().__init__(env)
+        if not float(low) < float(high):
+            raise ValueError(f"ClipActionWrapper: low={low!r} must be below high={high!r}")
+        self.low, self.high = float(low), float(high)
+
+    def step(self, state: State, action: jax.Array) -> State:
+        return self.env.step(state, jnp.clip(action, self.low, self.high))
 
 
 class EpisodeWrapper(_ParamWrapper):

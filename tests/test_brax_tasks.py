@@ -68,3 +68,22 @@ def test_a_killed_brax_run_keeps_the_seeds_it_finished(tmp_path):
     open(brax, "w").write(json.dumps(part))
     brax_tasks.main(["--merge", brax, "--out", str(tmp_path / "out")])
     assert "| 900.0 ± 0.0 (1 of 3 seeds) |" in (tmp_path / "out" / "gpu-x-brax_tasks.md").read_text()
+
+
+def test_clip_action_wrapper_hands_the_env_the_clipped_action_and_brax_s_preset_clips():
+    import jax.numpy as jnp
+
+    from envs_mjx.base import ClipActionWrapper, State
+    from train.presets import brax_ppo_config
+
+    class Echo:  # an env whose observation is the action it was given
+        def reset(self, rng):
+            return State(None, jnp.zeros(3), jnp.zeros(()), jnp.zeros(()), {}, {})
+
+        def step(self, state, action):
+            return state.replace(obs=action)
+
+    env = ClipActionWrapper(Echo())
+    out = env.step(env.reset(None), jnp.array([-3.0, 0.25, 7.0]))
+    assert out.obs.tolist() == [-1.0, 0.25, 1.0]
+    assert brax_ppo_config("halfcheetah", 6).clip_actions

@@ -90,7 +90,8 @@ def brax_ppo_config(task: str, action_size: int, **row: float) -> PPOConfig:
     as brax's passes cover. The networks are brax's defaults (policy 4 × 32, value 5 × 256, no
     batch-norm), with a learned state-independent σ starting at softplus(0) ≈ 0.7 (brax's starting
     scale; brax learns a state-dependent one), clip ε 0.3 and GAE λ 0.95 (brax's defaults),
-    normalised observations and advantages, one Adam learning rate for both.
+    normalised observations and advantages, one Adam learning rate for both; actions clipped to [−1, 1]
+    before the env (brax's policy squashes them with tanh; its envs charge control cost on the action given).
     """
     if task not in BRAX_PPO:
         raise KeyError(f"no brax PPO settings for {task!r}; known: {', '.join(BRAX_PPO)}")
@@ -105,7 +106,7 @@ def brax_ppo_config(task: str, action_size: int, **row: float) -> PPOConfig:
         total_steps=int(b["num_timesteps"]), gamma=float(b["discounting"]), gae_lambda=0.95, clip_eps=0.3,
         entropy_coef=float(b["entropy_cost"]), reward_scale=float(b["reward_scaling"]),
         actor_lr=float(b["learning_rate"]), critic_lr=float(b["learning_rate"]), sigma=(0.7,) * action_size,
-        learn_std=True, normalize_obs=True, normalize_advantages=True, batch_norm=False,
+        learn_std=True, clip_actions=True, normalize_obs=True, normalize_advantages=True, batch_norm=False,
         actor_hidden=(32, 32, 32, 32), critic_hidden=(256,) * 5, episode_length=int(b["episode_length"]),
         reset_refresh=1.0,
     )  # fmt: skip

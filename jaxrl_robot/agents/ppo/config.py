@@ -48,6 +48,9 @@ class PPOConfig(ActorCriticConfig):
     """Ceiling on the adaptive β."""
     gae_lambda: float = 0.95
     """λ of GAE (Eq. 5.12) and of the critic's λ-returns (Eq. 5.14)."""
+    clip_actions: bool = False
+    """Clip the actions the env receives, and the deterministic policy's, to [−1, 1] (the Gaussian's
+    sample is kept for its log-probability); for envs that take the action as given (brax's)."""
     normalize_obs: bool = False
     """Normalise observations by running mean and variance (actor and critic inputs)."""
     reset_refresh: float = 0.125

@@ -33,6 +33,7 @@ from brax.envs.base import Env, State
 from flax import struct
 from jax.sharding import Mesh
 
+from envs_mjx.base import ClipActionWrapper
 from envs_mjx.config import ConfigError
 from jaxrl_robot import parallel
 from jaxrl_robot.acting import per_lane_keys, rollout_with_memory
@@ -128,7 +129,7 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
     """
     run = common.setup(
         config,
-        env,
+        ClipActionWrapper(env) if config.clip_actions else env,
         mesh,
         iterations_per_update,
         reset_refresh=config.reset_refresh,
@@ -354,13 +355,15 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
 
     def policy(state: PPOState) -> Policy | RecurrentPolicy:
         if config.policy == "mlp":
+            if config.clip_actions:
+                return lambda obs: jnp.clip(act(state, (), obs)[1][0], -1.0, 1.0)
             return lambda obs: act(state, (), obs)[1][0]
         # One episode from t = 0: the table's entry for step 0 (zeros), carried through the episode.
         carry = jax.tree.map(lambda x: x[0], state.start_table) if use_table else nets.memory(())
 
         def step(memory: Any, obs: jax.Array) -> tuple[Any, jax.Array]:
             memory, (mean, _) = act(state, memory, obs)
-            return memory, mean
+            return memory, jnp.clip(mean, -1.0, 1.0) if config.clip_actions else mean
 
         return RecurrentPolicy(carry, step)
 
