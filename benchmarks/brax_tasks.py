@@ -172,7 +172,7 @@ def to_markdown(result: dict[str, Any]) -> str:
                    f"| {'**' + cell + '**' if won else cell} | {b['wall_per_seed_s']:.0f} "
                    f"| {'**' + wall + '**' if fast else wall} | {b['env_steps_per_s']:,.0f} "
                    f"| {o['env_steps_per_s']:,.0f} | {ro / rb if rb else float('nan'):.2f} |")  # fmt: skip
-        out.append("")
+    out.append("")
     for t in result["tasks"]:
         out.append(f"![{t['task']}]({os.path.basename(result['figures'])}/{t['task']}.png)")
     return "\n".join(out) + "\n"
@@ -308,6 +308,8 @@ def merge(paths: list[str], out: str, argv: list[str] | None = None) -> dict[str
     prov = provenance.record("benchmarks.brax_tasks", argv, device_info=first["provenance"]["device"],
                              seeds="as in the invocations above",
                              note="this file merges the results files of the invocations above")  # fmt: skip
+    ran_ours = [p for p in parts if any("ours" in r.get("sides", ("ours",)) for r in p["tasks"])]
+    first = {**first, "seed_map": (ran_ours or parts)[0]["seed_map"]}
     result = {**first, "tasks": list(tasks.values()), "figures": stem + "-figures", "merged_from": paths,
               "seeds": max(p["seeds"] for p in parts), "brax_seeds": max(p["brax_seeds"] for p in parts),
               "provenance": prov, "sources": [p["provenance"] for p in parts]}  # fmt: skip
