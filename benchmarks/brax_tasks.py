@@ -240,6 +240,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         settings = {**brax_row(task, args.num_envs, args.algo), **pairs(args.row)}
         our_steps = brax_ppo_steps(settings, steps) if args.algo == "ppo" else steps  # brax's count: equal steps
         row = {"task": task, "settings": settings, "sides": []}
+        result["tasks"].append(row)
         if not args.no_ours:
             row["ours"] = ours(env, task, settings, our_steps, args.seeds, args.eval_episodes, args.seed_map,
                                args.algo)  # fmt: skip
@@ -248,17 +249,14 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                   flush=True)  # fmt: skip
         if not args.no_brax:
             row["sides"].append("brax")
-            result["tasks"].append(row)
 
             def partial(record: dict[str, Any], row: dict[str, Any] = row) -> None:  # a killed run keeps its seeds
                 row["brax"] = record
                 write(stem, result)
 
-            row["brax"] = theirs(env, settings, steps, brax_seeds, ALGOS[args.algo][1], partial)
-            result["tasks"].pop()
+            theirs(env, settings, steps, brax_seeds, ALGOS[args.algo][1], partial)
             print(task, "brax", [round(r, 1) for r in row["brax"]["returns"]], f"{row['brax']['wall_s']:.0f} s",
                   flush=True)  # fmt: skip
-        result["tasks"].append(row)
         write(stem, result, echo=task == args.tasks[-1])
     return result
 

@@ -353,17 +353,19 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
     specs = common.state_specs(PPOState, env_state=parallel.P(_LANES), memory=parallel.P(_LANES))
     update = parallel.shard_lanes(chunk, run.mesh, in_specs=(specs,), out_specs=(specs, parallel.P()))
 
+    def acted(mean: jax.Array) -> jax.Array:
+        """The deterministic action of ``mean``: clipped as the env's actions are with ``clip_actions``."""
+        return jnp.clip(mean, -1.0, 1.0) if config.clip_actions else mean
+
     def policy(state: PPOState) -> Policy | RecurrentPolicy:
         if config.policy == "mlp":
-            if config.clip_actions:
-                return lambda obs: jnp.clip(act(state, (), obs)[1][0], -1.0, 1.0)
-            return lambda obs: act(state, (), obs)[1][0]
+            return lambda obs: acted(act(state, (), obs)[1][0])
         # One episode from t = 0: the table's entry for step 0 (zeros), carried through the episode.
         carry = jax.tree.map(lambda x: x[0], state.start_table) if use_table else nets.memory(())
 
         def step(memory: Any, obs: jax.Array) -> tuple[Any, jax.Array]:
             memory, (mean, _) = act(state, memory, obs)
-            return memory, jnp.clip(mean, -1.0, 1.0) if config.clip_actions else mean
+            return memory, acted(mean)
 
         return RecurrentPolicy(carry, step)
 
