@@ -47,6 +47,7 @@ from envs_mjx.config import apply_overrides
 __all__ = [
     "AutoResetWrapper",
     "ClipActionWrapper",
+    "TanhActionWrapper",
     "EpisodeWrapper",
     "PoolResetWrapper",
     "RobotEnv",
@@ -152,6 +153,14 @@ class ClipActionWrapper(_ParamWrapper):
 
     def step(self, state: State, action: jax.Array) -> State:
         return self.env.step(state, jnp.clip(action, self.low, self.high))
+
+
+class TanhActionWrapper(_ParamWrapper):
+    """Actions squashed by ``tanh`` into ``(-1, 1)`` before the env steps (unbatched or batched):
+    the env side of a tanh-squashed Gaussian policy, which keeps its unsquashed sample."""
+
+    def step(self, state: State, action: jax.Array) -> State:
+        return self.env.step(state, jnp.tanh(action))
 
 
 class EpisodeWrapper(_ParamWrapper):

@@ -3,13 +3,15 @@
 Networks are plain ``flax.linen`` modules: ``variables = net.init(key, obs)`` and
 ``net.apply(variables, obs)``, pure functions of their parameters.
 
-* :class:`MLP` — fully connected ReLU trunk.
+* :class:`MLP` — fully connected trunk (ReLU by default; :data:`ACTIVATIONS` names the choices).
 * :class:`Critic` — ``V(s)``: MLP with a linear scalar output (no batch-norm; the thesis keeps
   the critic's output linear, §4.1.3).
 * :class:`GaussianActor` — the mean action ``μ(s) = tanh(...)`` in ``[-1, 1]`` (the
   environment multiplies by its scale vector C) and the log standard deviation, either a
   fixed hyper-parameter vector σ (the thesis, Table 5.2: σ = [0.8, 0.8, 0.1]) or a learned
-  state-independent log-std initialised at ``log σ``. With ``batch_norm=True`` the input and
+  state-independent log-std initialised at ``log σ``, or (``state_std``) a state-dependent
+  ``σ(s) = softplus(·) + min_std`` from a second linear head, starting at σ; ``squash=False``
+  leaves the mean linear, for a policy whose sample an env wrapper squashes. With ``batch_norm=True`` the input and
   every hidden pre-activation are batch-normalised (thesis Fig. 4.2–4.3): batch statistics
   while training, moving averages for acting and evaluation (SPEC §A11).
 * :class:`BatchRenorm` — the actor's default batch-norm layer: batch renormalisation (Ioffe,
@@ -41,6 +43,7 @@ import numpy as np
 from jaxrl_robot.types import RunningStats
 
 __all__ = [
+    "ACTIVATIONS",
     "BN_MODES",
     "MLP",
     "BatchRenorm",
@@ -61,20 +64,32 @@ _LOG_2PI = float(np.float32(math.log(2.0 * math.pi)))
 
 BN_MODES = ("renorm", "batch")
 
+ACTIVATIONS = {"relu": nn.relu, "swish": nn.swish, "tanh": nn.tanh, "elu": nn.elu}
+"""The hidden layers' activation functions by name (brax's PPO networks use ``swish``)."""
+
+
+def activation_fn(name: str):
+    """The function :data:`ACTIVATIONS` names (``ValueError`` listing the choices otherwise)."""
+    if name not in ACTIVATIONS:
+        raise ValueError(f"activation={name!r} is not one of {', '.join(map(repr, ACTIVATIONS))}")
+    return ACTIVATIONS[name]
+
 
 def _dense(features: int, scale: float, use_bias: bool = True) -> nn.Dense:
     return nn.Dense(features, use_bias=use_bias, kernel_init=nn.initializers.orthogonal(scale))
 
 
 class MLP(nn.Module):
-    """ReLU MLP ``[..., D] -> [..., hidden[-1]]`` (orthogonal init, gain √2)."""
+    """MLP ``[..., D] -> [..., hidden[-1]]`` (orthogonal init, gain √2; ``activation`` of :data:`ACTIVATIONS`)."""
 
     hidden: Sequence[int] = (200, 200)
+    activation: str = "relu"
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
+        act = activation_fn(self.activation)
         for width in self.hidden:
-            x = nn.relu(_dense(width, jnp.sqrt(2.0))(x))
+            x = act(_dense(width, jnp.sqrt(2.0))(x))
         return x
 
 
@@ -82,10 +97,11 @@ class Critic(nn.Module):
     """State-value network ``V(s)``: ``[..., obs] -> [...]``."""
 
     hidden: Sequence[int] = (200, 200)
+    activation: str = "relu"
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> jax.Array:
-        x = MLP(self.hidden)(obs)
+        x = MLP(self.hidden, self.activation)(obs)
         return _dense(1, 1.0)(x)[..., 0]
 
 
@@ -169,6 +185,11 @@ class GaussianActor(nn.Module):
       hidden: hidden layer widths (thesis arm: (200, 200); mobile robot: (256, 256)).
       sigma: initial / fixed standard deviation, one value per action dimension or a scalar.
       learn_std: False → σ is the fixed hyper-parameter ``sigma``; True → a learned log-std.
+      state_std: with ``learn_std``, σ depends on the state: ``softplus(W h + b + c) + min_std``
+        (brax's parametrisation), ``c`` chosen so that σ starts at ``sigma``.
+      min_std: the floor of a state-dependent σ.
+      squash: ``tanh`` on the mean (in ``[-1, 1]``); False: a linear mean (the acting side squashes).
+      activation: the hidden layers' activation (:data:`ACTIVATIONS`).
       batch_norm: normalise the input and every hidden pre-activation (bias-free linear
         layers, as the BN shift replaces the bias).
       bn_momentum: moving-average decay of the batch-norm statistics.
@@ -193,21 +214,31 @@ class GaussianActor(nn.Module):
     bn_mode: str = "renorm"
     bn_r_max: float = 3.0
     bn_d_max: float = 5.0
+    state_std: bool = False
+    min_std: float = 1e-3
+    squash: bool = True
+    activation: str = "relu"
 
     @nn.compact
     def __call__(
         self, obs: jax.Array, train: bool = False, mask: jax.Array | None = None
     ) -> tuple[jax.Array, jax.Array]:
         x = obs
+        act = activation_fn(self.activation)
         if self.batch_norm:
             x = self._bn(x, train, mask, 0)
         for i, width in enumerate(self.hidden):
             x = _dense(width, jnp.sqrt(2.0), use_bias=not self.batch_norm)(x)
             if self.batch_norm:
                 x = self._bn(x, train, mask, i + 1)
-            x = nn.relu(x)
-        mean = jnp.tanh(_dense(self.action_size, 0.01)(x))
+            x = act(x)
+        mean = _dense(self.action_size, 0.01)(x)
+        mean = jnp.tanh(mean) if self.squash else mean
         sigma = jnp.broadcast_to(jnp.asarray(self.sigma, jnp.float32), (self.action_size,))
+        if self.learn_std and self.state_std:
+            offset = _inverse_softplus(jnp.maximum(sigma - self.min_std, 1e-6))
+            raw = nn.Dense(self.action_size, kernel_init=nn.initializers.orthogonal(0.01), name="std")(x)
+            return mean, jnp.log(jax.nn.softplus(raw + offset) + self.min_std)
         if self.learn_std:
             log_std = self.param("log_std", lambda _k, s: jnp.log(s), sigma)
         else:
@@ -231,6 +262,11 @@ class GaussianActor(nn.Module):
             axis_name=axis_name,
             name=name,
         )(x, mask=row_mask)
+
+
+def _inverse_softplus(y: jax.Array) -> jax.Array:
+    """``x`` with ``softplus(x) = y`` for ``y > 0``: ``log(expm1(y))``."""
+    return y + jnp.log(-jnp.expm1(-y))
 
 
 def apply_actor(

@@ -41,7 +41,7 @@ from envs_mjx.base import wrap_for_training
 from envs_mjx.config import ConfigError, check_choice, check_range
 from jaxrl_robot import parallel
 from jaxrl_robot.acting import per_lane_keys
-from jaxrl_robot.networks import BN_MODES, Critic, GaussianActor, gaussian_sample
+from jaxrl_robot.networks import ACTIVATIONS, BN_MODES, Critic, GaussianActor, gaussian_sample
 from jaxrl_robot.types import Metrics, Policy, Trainer, Transition
 
 __all__ = [
@@ -106,6 +106,11 @@ class ActorCriticConfig:
     """Policy standard deviation per action dimension (one value is broadcast)."""
     learn_std: bool = False
     """Learn a state-independent log-std starting at log(sigma) instead of a fixed σ."""
+    state_std: bool = False
+    """With learn_std: a state-dependent σ(s) = softplus(·) + 0.001 from a second output layer of
+    the actor, starting at sigma (brax's PPO parametrisation)."""
+    activation: str = "relu"
+    """Hidden-layer activation of actor and critic: relu, swish (brax's PPO networks), tanh or elu."""
     actor_hidden: tuple[int, ...] = (200, 200)
     """Hidden layer widths of the actor."""
     critic_hidden: tuple[int, ...] = (200, 200)
@@ -145,6 +150,9 @@ class ActorCriticConfig:
         check_range("gamma", self.gamma, 0.0, 1.0)
         check_range("bn_momentum", self.bn_momentum, 0.0, 1.0, hi_open=True)
         check_choice("bn_mode", self.bn_mode, BN_MODES)
+        check_choice("activation", self.activation, tuple(ACTIVATIONS))
+        if self.state_std and not self.learn_std:
+            raise ConfigError("state_std=True needs learn_std=True (a state-dependent σ is learned)")
         check_range("entropy_coef", self.entropy_coef, 0.0)
         check_range("max_grad_norm", self.max_grad_norm, 0.0)
         check_range("reward_scale", self.reward_scale, 0.0, lo_open=True)
@@ -165,12 +173,13 @@ class ActorCriticConfig:
 
 # ---- networks and optimiser -------------------------------------------------------------------
 def make_actor_critic(
-    config: ActorCriticConfig, action_size: int, bn_axis_name: str | None = None
+    config: ActorCriticConfig, action_size: int, bn_axis_name: str | None = None, squash: bool = True
 ) -> tuple[GaussianActor, Critic]:
     """The Gaussian actor and the critic of ``config``; σ is broadcast to ``action_size``.
 
     ``bn_axis_name``: the mapped axis the actor's batch statistics are averaged over (the lanes'
-    mesh axis when one batch spans every device's lanes), or None.
+    mesh axis when one batch spans every device's lanes), or None. ``squash``: ``tanh`` on the
+    actor's mean (False: a linear mean, for actions squashed on the env's side).
     """
     actor = GaussianActor(
         action_size=action_size,
@@ -181,8 +190,11 @@ def make_actor_critic(
         bn_momentum=config.bn_momentum,
         bn_mode=config.bn_mode,
         bn_axis_name=bn_axis_name,
+        state_std=config.state_std,
+        squash=squash,
+        activation=config.activation,
     )
-    return actor, Critic(hidden=tuple(config.critic_hidden))
+    return actor, Critic(hidden=tuple(config.critic_hidden), activation=config.activation)
 
 
 def action_sigma(config: ActorCriticConfig, action_size: int) -> tuple[float, ...]:

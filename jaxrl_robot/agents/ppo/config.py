@@ -51,6 +51,10 @@ class PPOConfig(ActorCriticConfig):
     clip_actions: bool = False
     """Clip the actions the env receives, and the deterministic policy's, to [−1, 1] (the Gaussian's
     sample is kept for its log-probability); for envs that take the action as given (brax's)."""
+    tanh_actions: bool = False
+    """Squash the actions the env receives with ``tanh`` (the Gaussian's mean is then linear and the
+    deterministic action is tanh(mean)): brax's and SAC's squashed Gaussian. Log-probabilities are
+    taken of the unsquashed sample, whose probability ratio the squash leaves unchanged."""
     normalize_obs: bool = False
     """Normalise observations by running mean and variance (actor and critic inputs)."""
     reset_refresh: float = 0.125
@@ -122,6 +126,12 @@ class PPOConfig(ActorCriticConfig):
         check_choice("pretrain", self.pretrain, PRETRAINS)
         check_counts(self, "pretrain_episodes", "pretrain_candidates", "pretrain_epochs")
         check_range("pretrain_lr", self.pretrain_lr, 0.0, lo_open=True)
+        if self.clip_actions and self.tanh_actions:
+            raise ConfigError("clip_actions=True and tanh_actions=True exclude each other; choose one")
+        if self.policy == "lstm":
+            for name, plain in (("tanh_actions", False), ("state_std", False), ("activation", "relu")):
+                if getattr(self, name) != plain:
+                    raise ConfigError(f"{name}={getattr(self, name)!r} needs policy='mlp' (valid with 'lstm': {plain!r})")
         if self.pretrain != "none" and self.policy != "mlp":
             raise ConfigError(f"pretrain={self.pretrain!r} needs policy='mlp' (got policy={self.policy!r})")
         if self.policy == "lstm":

@@ -59,7 +59,9 @@ def make_ppo_nets(config: PPOConfig, action_size: int, bn_axis_name: str | None 
     """The :class:`PPONets` of ``config.policy`` (``bn_axis_name``: see ``common.make_actor_critic``)."""
     if config.policy == "lstm":
         return _lstm_nets(config, action_size)
-    actor, critic = common.make_actor_critic(config, action_size, bn_axis_name=bn_axis_name)
+    actor, critic = common.make_actor_critic(
+        config, action_size, bn_axis_name=bn_axis_name, squash=not config.tanh_actions
+    )
 
     def act(actor_params, actor_stats, critic_params, memory, obs):
         return memory, apply_actor(actor, actor_params, actor_stats, obs)[0]

@@ -33,7 +33,7 @@ from brax.envs.base import Env, State
 from flax import struct
 from jax.sharding import Mesh
 
-from envs_mjx.base import ClipActionWrapper
+from envs_mjx.base import ClipActionWrapper, TanhActionWrapper
 from envs_mjx.config import ConfigError
 from jaxrl_robot import parallel
 from jaxrl_robot.acting import per_lane_keys, rollout_with_memory
@@ -127,9 +127,11 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
     devices); one ``update`` call runs ``iterations_per_update`` iterations (see
     :func:`~jaxrl_robot.agents.common.setup`).
     """
+    acting_env = ClipActionWrapper(env) if config.clip_actions else env
+    acting_env = TanhActionWrapper(acting_env) if config.tanh_actions else acting_env
     run = common.setup(
         config,
-        ClipActionWrapper(env) if config.clip_actions else env,
+        acting_env,
         mesh,
         iterations_per_update,
         reset_refresh=config.reset_refresh,
@@ -354,7 +356,10 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
     update = parallel.shard_lanes(chunk, run.mesh, in_specs=(specs,), out_specs=(specs, parallel.P()))
 
     def acted(mean: jax.Array) -> jax.Array:
-        """The deterministic action of ``mean``: clipped as the env's actions are with ``clip_actions``."""
+        """The deterministic action of ``mean``: clipped or squashed as the env's actions are
+        (``clip_actions``, ``tanh_actions``)."""
+        if config.tanh_actions:
+            return jnp.tanh(mean)
         return jnp.clip(mean, -1.0, 1.0) if config.clip_actions else mean
 
     def policy(state: PPOState) -> Policy | RecurrentPolicy:
