@@ -186,7 +186,9 @@ class EpisodeWrapper(_ParamWrapper):
 
     def step(self, state: State, action: jax.Array) -> State:
         prev_done = state.done.astype(jnp.float32)
-        nstate = self.env.step(state, action)
+        # The inner env steps from done = 0: an env that never writes ``done`` (brax's halfcheetah,
+        # reacher) would otherwise carry the time limit's done into every later step.
+        nstate = self.env.step(state.replace(done=jnp.zeros_like(state.done)), action)
         info = dict(nstate.info)
         steps = state.info["steps"] + 1
         at_limit = steps >= self.episode_length

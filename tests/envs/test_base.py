@@ -132,6 +132,31 @@ def test_auto_reset_gives_fresh_start_and_keeps_final_step():
     assert len(np.unique(starts.round(6))) == starts.size
 
 
+class KeepsDone(Toy):
+    """The toy stepped as brax's halfcheetah and reacher step: ``done`` is never written (kept as given)."""
+
+    def step(self, state, action):
+        return super().step(state, action).replace(done=state.done)
+
+
+@pytest.mark.parametrize("refresh", [1.0, 0.5])
+def test_time_limit_restarts_an_env_that_never_writes_done(refresh):
+    # Episodes of 3 steps, reward -|x| with x constant (zero action): done at steps 3 and 6 only, and
+    # each episode's return is the sum of its own 3 rewards (not one step's reward after the first limit).
+    env = wrap_for_training(KeepsDone(max_steps=3), num_envs=2, reset_refresh=refresh, reset_group=2)
+    state = jax.jit(env.reset)(jax.random.PRNGKey(3))
+    step = jax.jit(env.step)
+    dones, returns = [], []
+    for _ in range(7):
+        x = np.asarray(state.obs[:, 0])
+        state = step(state, jnp.zeros((2, 1)))
+        dones.append(np.asarray(state.done))
+        returns.append((np.asarray(state.info["episode_return"]), -3 * x))
+    np.testing.assert_array_equal(np.stack(dones), [[0, 0], [0, 0], [1, 1], [0, 0], [0, 0], [1, 1], [0, 0]])
+    for t in (2, 5):
+        np.testing.assert_allclose(returns[t][0], returns[t][1], rtol=1e-6)
+
+
 def test_episode_params_survive_auto_reset():
     env = wrap_for_training(Toy(max_steps=1), num_envs=3)
     state = env.reset(jax.random.PRNGKey(2), {"offset": jnp.asarray(10.0)})
