@@ -180,10 +180,12 @@ def to_markdown(result: dict[str, Any]) -> str:
 
 def figure(task: dict[str, Any], out_dir: str) -> str | None:
     """Ours: mean return of the training episodes that ended in each chunk; brax: its evaluations."""
+    labels = {"ours": "ours: training episodes, sampled actions", "brax": "brax: its evaluations, deterministic"}
     curves = {
-        name: [[{"env_steps": x, "episode_return": y} for x, y in zip(task[name]["curve_steps"], seed, strict=True)]
-               for seed in task[name]["curves"]]
-        for name in ("ours", "brax") if task[name].get("curves")
+        labels[name]: [[{"env_steps": x, "episode_return": y}
+                        for x, y in zip(task[name]["curve_steps"], seed, strict=True)]
+                       for seed in task[name]["curves"]]
+        for name in ("ours", "brax") if task.get(name, {}).get("curves")
     }  # fmt: skip
     return plots.plot_seed_bands(curves, "episode_return", out_dir, f"{task['task']}.png", task["task"])
 

@@ -86,8 +86,10 @@ def plot_seed_bands(
         with warnings.catch_warnings():  # chunks without a finished episode are NaN in every seed
             warnings.simplefilter("ignore", RuntimeWarning)
             mean, lo, hi = np.nanmean(y, axis=0), np.nanmin(y, axis=0), np.nanmax(y, axis=0)
-        (line,) = ax.plot(steps, mean, label=f"{label} ({len(seeds)} seeds)")
-        ax.fill_between(steps, lo, hi, color=line.get_color(), alpha=0.2)
+        ok = np.isfinite(mean)  # chunks where no episode ended are left out, the points around them joined
+        marker = "o" if ok.sum() <= 20 else None
+        (line,) = ax.plot(steps[ok], mean[ok], marker=marker, ms=3, label=f"{label} ({len(seeds)} seeds)")
+        ax.fill_between(steps[ok], lo[ok], hi[ok], color=line.get_color(), alpha=0.2)
         drawn += 1
     if not drawn:
         plt.close(fig)

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
+
 from benchmarks import brax_tasks, provenance
 from train.presets import BRAX_PPO
 
@@ -70,10 +72,10 @@ def test_a_killed_brax_run_keeps_the_seeds_it_finished(tmp_path):
     assert "| 900.0 ± 0.0 (1 of 3 seeds) |" in (tmp_path / "out" / "gpu-x-brax_tasks.md").read_text()
 
 
-def test_clip_action_wrapper_hands_the_env_the_clipped_action_and_brax_s_preset_clips():
+def test_action_wrappers_hand_the_env_the_clipped_or_squashed_action_and_brax_s_preset_clips():
     import jax.numpy as jnp
 
-    from envs_mjx.base import ClipActionWrapper, State
+    from envs_mjx.base import ClipActionWrapper, State, TanhActionWrapper
     from train.presets import brax_ppo_config
 
     class Echo:  # an env whose observation is the action it was given
@@ -87,3 +89,6 @@ def test_clip_action_wrapper_hands_the_env_the_clipped_action_and_brax_s_preset_
     out = env.step(env.reset(None), jnp.array([-3.0, 0.25, 7.0]))
     assert out.obs.tolist() == [-1.0, 0.25, 1.0]
     assert brax_ppo_config("halfcheetah", 6).clip_actions
+    squash = TanhActionWrapper(Echo())
+    out = squash.step(squash.reset(None), jnp.array([-3.0, 0.25, 0.0]))
+    np.testing.assert_allclose(out.obs, [-0.99505475, 0.24491866, 0.0], rtol=1e-6)  # tanh by hand

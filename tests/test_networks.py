@@ -46,6 +46,41 @@ def test_learned_log_std_is_a_parameter_with_gradient():
     assert np.all(np.abs(g["log_std"]) > 0)
 
 
+def test_state_dependent_sigma_starts_at_sigma_varies_with_the_state_and_keeps_its_floor():
+    actor = GaussianActor(action_size=2, hidden=(4,), sigma=(0.7, 0.2), learn_std=True, state_std=True, squash=False)
+    obs = jax.random.normal(jax.random.PRNGKey(2), (6, 3))
+    params = actor.init(jax.random.PRNGKey(0), obs)["params"]
+    zero = jax.tree.map(jnp.zeros_like, params["std"])
+    _, log_std = actor.apply({"params": {**params, "std": zero}}, obs)
+    np.testing.assert_allclose(np.exp(log_std), np.tile([0.7, 0.2], (6, 1)), rtol=1e-5)  # softplus(c) + 0.001 = σ
+    _, log_std = actor.apply({"params": params}, obs)
+    assert np.ptp(np.asarray(log_std)[:, 0]) > 0  # a state-dependent σ
+    low = {**params, "std": {"kernel": zero["kernel"], "bias": jnp.full((2,), -50.0)}}
+    _, log_std = actor.apply({"params": low}, obs)
+    np.testing.assert_allclose(np.exp(log_std), 1e-3, rtol=1e-3)  # the floor min_std
+    # squash=False: the mean is the last layer's output, not bounded by tanh
+    big = jax.tree.map(lambda x: 1e3 * x, params)
+    mean, _ = actor.apply({"params": big}, obs)
+    assert np.abs(np.asarray(mean)).max() > 1.0
+
+
+def test_activation_is_chosen_by_name_and_an_unknown_one_names_the_choices():
+    obs = jax.random.normal(jax.random.PRNGKey(1), (4, 3))
+    relu, swish = Critic(hidden=(8,)), Critic(hidden=(8,), activation="swish")
+    params = relu.init(jax.random.PRNGKey(0), obs)
+    h = obs @ params["params"]["MLP_0"]["Dense_0"]["kernel"] + params["params"]["MLP_0"]["Dense_0"]["bias"]
+    out = params["params"]["Dense_0"]
+    expect = (h * jax.nn.sigmoid(h)) @ out["kernel"][:, 0] + out["bias"][0]  # swish by hand
+    np.testing.assert_allclose(swish.apply(params, obs), expect, rtol=1e-5)
+    assert not np.allclose(relu.apply(params, obs), expect)
+    try:
+        Critic(hidden=(8,), activation="gelu").init(jax.random.PRNGKey(0), obs)
+    except ValueError as e:
+        assert "activation='gelu'" in str(e) and "'swish'" in str(e)
+    else:
+        raise AssertionError("an unknown activation must raise")
+
+
 def test_batch_norm_uses_batch_stats_in_training_and_moving_averages_in_eval():
     actor = GaussianActor(action_size=1, hidden=(6,), batch_norm=True, bn_momentum=0.5, bn_mode="batch")
     key = jax.random.PRNGKey(0)

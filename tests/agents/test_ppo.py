@@ -22,7 +22,7 @@ from jaxrl_robot.agents.ppo import (
     make_trainer,
     value_loss,
 )
-from jaxrl_robot.networks import apply_actor, gaussian_sample
+from jaxrl_robot.networks import apply_actor, gaussian_sample, normalize
 
 # ---------------------------------------------------------------------------------------------
 # losses, hand-computed
@@ -94,6 +94,15 @@ def test_config_errors_name_the_field():
         PPOConfig(minibatch_size=30).validate()
     with pytest.raises(ConfigError, match=r"minibatch_size=64 is out of range"):
         PPOConfig(minibatch_size=64).validate()
+    with pytest.raises(ConfigError, match="state_std=True needs learn_std=True"):
+        PPOConfig(state_std=True).validate()
+    with pytest.raises(ConfigError, match="clip_actions=True and tanh_actions=True exclude each other"):
+        PPOConfig(clip_actions=True, tanh_actions=True).validate()
+    with pytest.raises(ConfigError, match="activation='gelu'.*'relu', 'swish'"):
+        PPOConfig(activation="gelu").validate()
+    lstm = dict(policy="lstm", batch_norm=False, num_envs=4, unroll_length=10, minibatch_size=40)
+    with pytest.raises(ConfigError, match="tanh_actions=True needs policy='mlp'"):
+        PPOConfig(tanh_actions=True, **lstm).validate()
 
 
 # ---------------------------------------------------------------------------------------------
@@ -171,6 +180,19 @@ def test_update_runs_without_recompiling_and_reports_metrics(toy):
         assert k in m2
     assert int(state.iteration) == 2
     assert np.isfinite(float(m2["critic_loss"]))
+
+
+def test_tanh_actions_act_with_tanh_of_the_mean_of_a_state_dependent_swish_actor():
+    config = TOY.replace(tanh_actions=True, learn_std=True, state_std=True, activation="swish", batch_norm=False,
+                         objective="clip", schedule=())  # fmt: skip
+    trainer = make_trainer(config, Line())
+    state, metrics = jax.jit(trainer.update)(jax.jit(trainer.init)(jax.random.PRNGKey(0)))
+    assert np.isfinite(float(metrics["actor_loss"])) and np.isfinite(float(metrics["entropy"]))
+    actor, _ = make_networks(config, 1)
+    obs = jnp.array([[3.0, 3.0], [-0.2, 0.2]])
+    (mean, log_std), _ = apply_actor(actor, state.actor_params, {}, normalize(state.obs_stats, obs))
+    np.testing.assert_allclose(trainer.policy(state)(obs), jnp.tanh(mean), rtol=1e-6)
+    assert not np.allclose(log_std[0], log_std[1])  # σ depends on the state
 
 
 def test_kl_beta_follows_the_halve_double_rule_in_training(toy):

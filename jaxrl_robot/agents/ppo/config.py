@@ -130,8 +130,9 @@ class PPOConfig(ActorCriticConfig):
             raise ConfigError("clip_actions=True and tanh_actions=True exclude each other; choose one")
         if self.policy == "lstm":
             for name, plain in (("tanh_actions", False), ("state_std", False), ("activation", "relu")):
-                if getattr(self, name) != plain:
-                    raise ConfigError(f"{name}={getattr(self, name)!r} needs policy='mlp' (valid with 'lstm': {plain!r})")
+                value = getattr(self, name)
+                if value != plain:
+                    raise ConfigError(f"{name}={value!r} needs policy='mlp' (valid with 'lstm': {plain!r})")
         if self.pretrain != "none" and self.policy != "mlp":
             raise ConfigError(f"pretrain={self.pretrain!r} needs policy='mlp' (got policy={self.policy!r})")
         if self.policy == "lstm":
