@@ -20,9 +20,12 @@ default) for the same env steps with the settings of :data:`train.presets.BRAX_P
 (``python -m train.ppo --env brax:<task>`` picks the same preset). Our seeds run through one compiled
 program called per seed (``--seed-map vmap``: one vmapped program), brax's one after another.
 
-* **return**: brax: its own final evaluation (``eval/episode_reward``, deterministic policy, 128
-  episodes of ``episode_length`` steps); ours: the deterministic policy on ``--eval-episodes`` fresh
-  episodes of the same length (:func:`jaxrl_robot.evaluation.run_test_episodes`). Mean ± std over seeds.
+* **return**: brax: its own final evaluation (``eval/episode_reward``, 128 episodes of
+  ``episode_length`` steps) of its policy's sampled actions (brax's default) or, with ``--eval-mode
+  deterministic``, of its mean action (``deterministic_eval``); ours: ``--eval-episodes`` fresh episodes
+  of the same length (:func:`jaxrl_robot.evaluation.run_test_episodes`) in the same mode
+  (``Trainer.sample_policy`` for sampled actions; TD3 and DDPG have only their deterministic policy), and
+  with the mean action beside it. Mean ± std over seeds; the goal compares returns of the same mode.
 * **wall**: from the call to the trained parameters, compilation included (per seed: the seeds' total
   over their number); brax's includes the 10 evaluations its ``ppo.train`` runs along the way
   (128 episodes each), ours has no evaluation inside training; **env steps/s**: env steps of all
@@ -89,48 +92,75 @@ def our_trainer(algo: str, task: str, env: Any, row: dict[str, float], steps: in
     return ddpg.make_trainer(config, env, iterations_per_update=max(1, config.iterations // 20)), config.episode_length
 
 
+EVAL_MODES = ("stochastic", "deterministic")
+"""How the final evaluation acts: the policy's sampled actions (brax's default) or its mean action."""
+
+
+def eval_mode(side: dict[str, Any], name: str) -> str:
+    """The evaluation mode of a side's record; records without one: ours deterministic, brax's sampled
+    (brax's ``deterministic_eval=False`` default, which the peer kept until the mode was recorded)."""
+    return side.get("eval_mode", "deterministic" if name == "ours" else "stochastic")
+
+
+def our_returns(side: dict[str, Any], mode: str) -> list[float] | None:
+    """Our returns per seed in evaluation ``mode``, or None where that mode was not measured."""
+    if eval_mode(side, "ours") == mode:
+        return side["returns"]
+    return side.get("returns_deterministic") if mode == "deterministic" else None
+
+
 def ours(env: Any, task: str, row: dict[str, float], steps: int, seeds: int, eval_episodes: int,
-         seed_map: str = "loop", algo: str = "ppo") -> dict[str, Any]:  # fmt: skip
+         seed_map: str = "loop", algo: str = "ppo", mode: str = "stochastic") -> dict[str, Any]:  # fmt: skip
     """Train our ``algo`` on ``seeds`` keys, one vmapped program (``seed_map='vmap'``) or one compiled
-    program called per key (``'loop'``); returns, curves and wall time (compilation included)."""
+    program called per key (``'loop'``); returns (evaluation ``mode`` where the trainer can sample, and the
+    mean action's as ``returns_deterministic``), curves and wall time (compilation included)."""
     trainer, episode_length = our_trainer(algo, task, env, row, steps)
+    sampled = mode == "stochastic" and trainer.sample_policy is not None
 
     def train(key: jax.Array) -> tuple[Any, Any]:
         state = trainer.init(key)
         return jax.lax.scan(lambda s, _: trainer.update(s), state, None, length=trainer.num_updates)
 
-    def test(state: Any, key: jax.Array) -> jax.Array:
-        return run_test_episodes(key, env, trainer.policy(state), eval_episodes, episode_length)["return"]
+    def test(state: Any, key: jax.Array) -> tuple[jax.Array, jax.Array]:
+        mean = run_test_episodes(key, env, trainer.policy(state), eval_episodes, episode_length)["return"]
+        if not sampled:
+            return mean, mean
+        policy = trainer.sample_policy(state, jax.random.fold_in(key, 1))
+        return run_test_episodes(key, env, policy, eval_episodes, episode_length)["return"], mean
 
     keys, eval_keys = jax.random.split(jax.random.PRNGKey(0), seeds), jax.random.split(jax.random.PRNGKey(1), seeds)
     t0 = time.perf_counter()
     if seed_map == "vmap":
         states, metrics = jax.block_until_ready(jax.jit(jax.vmap(train))(keys))
         wall = time.perf_counter() - t0
-        returns = np.asarray(jax.jit(jax.vmap(test))(states, eval_keys)).mean(axis=1)
+        returns, means = (np.asarray(r).mean(axis=1) for r in jax.jit(jax.vmap(test))(states, eval_keys))
         per_chunk = np.asarray(metrics["episode_return"])  # [seeds, chunks]: training episodes (NaN: none ended)
     else:
         train_one, test_one = jax.jit(train), jax.jit(test)
         runs = [jax.block_until_ready(train_one(k)) for k in keys]
         wall = time.perf_counter() - t0
-        returns = np.array([float(np.mean(test_one(st, k))) for (st, _), k in zip(runs, eval_keys, strict=True)])
+        tests = [test_one(st, k) for (st, _), k in zip(runs, eval_keys, strict=True)]
+        returns, means = (np.array([float(np.mean(t[i])) for t in tests]) for i in (0, 1))
         per_chunk = np.stack([np.asarray(m["episode_return"]) for _, m in runs])
     done = trainer.env_steps_per_update * (np.arange(per_chunk.shape[1]) + 1)
-    return {"returns": returns.tolist(), "wall_s": wall, "wall_per_seed_s": wall / seeds, "seed_map": seed_map,
+    return {"returns": returns.tolist(), "eval_mode": "stochastic" if sampled else "deterministic",
+            "returns_deterministic": means.tolist(),
+            "wall_s": wall, "wall_per_seed_s": wall / seeds, "seed_map": seed_map,
             "env_steps": int(done[-1]), "env_steps_per_s": seeds * done[-1] / wall,
             "curve_steps": done.tolist(), "curves": per_chunk.tolist()}  # fmt: skip
 
 
 def theirs(env: Any, row: dict[str, float], steps: int, seeds: int, peer: str = "ppo",
-           done: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:  # fmt: skip
+           done: Callable[[dict[str, Any]], None] | None = None,
+           mode: str = "stochastic") -> dict[str, Any]:  # fmt: skip
     """brax's ``ppo.train`` (``peer='sac'``: ``sac.train``) with the task's ``row`` (brax's terms), one seed
-    after another; ``done`` is called with the record of the seeds so far after each one."""
+    after another, evaluated in ``mode``; ``done`` is called with the record of the seeds so far after each one."""
     from benchmarks.peers.brax_ppo import train_published
 
     runs = []
     for seed in range(seeds):
-        runs.append(train_published(env, row, steps, seed, peer))
-        record = summary(runs)
+        runs.append(train_published(env, row, steps, seed, peer, deterministic_eval=mode == "deterministic"))
+        record = {**summary(runs), "eval_mode": mode}
         if done is not None:
             done(record)
     return record
@@ -151,27 +181,33 @@ def to_markdown(result: dict[str, Any]) -> str:
     out = [f"# Our {name} beside brax's {peer.upper()} on brax's tasks — {result['device']}", "",
            f"Backend `{result['backend']}`; {result['seeds']} seeds of ours ({result['seed_map']}), "
            f"{result['brax_seeds']} of brax's (one after another); the same env steps and settings "
-           f"(`train.presets.{table}`). Return: our deterministic "
-           "policy on fresh episodes (ours: "
-           f"{result['eval_episodes']} episodes; brax: its own final evaluation). Wall: compilation included. "
-           "Bold: at the goal (our return ≥ brax's; our wall per seed ≤ brax's)."
+           f"(`train.presets.{table}`). Return: each side's final evaluation on fresh episodes (ours: "
+           f"{result['eval_episodes']} episodes; brax: 128) in the mode its column names — sampled actions "
+           "(brax's default) or the mean action; ours also with the mean action. Wall: compilation included. "
+           "Bold: at the goal (our return ≥ brax's in the same mode; our wall per seed ≤ brax's)."
            + (f" Merged from {len(result['merged_from'])} invocations (`--merge`; each one's provenance below)."
               if result.get("merged_from") else ""), "",
-           "| task | env steps | brax return | our return | brax wall per seed s | our wall per seed s "
-           "| brax env steps/s | our env steps/s | our / brax return |",
-           "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
+           "| task | env steps | brax return | our return, same mode | our return, mean action "
+           "| brax wall per seed s | our wall per seed s | brax env steps/s | our env steps/s | our / brax return |",
+           "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
+    words = {"stochastic": "sampled", "deterministic": "mean action"}
     for t in result["tasks"]:
         b, o = t["brax"], t["ours"]
-        rb, ro = np.mean(b["returns"]), np.mean(o["returns"])
+        mode = eval_mode(b, "brax")
+        same, mean = our_returns(o, mode), our_returns(o, "deterministic")
+        rb, ro = np.mean(b["returns"]), np.mean(same) if same else float("nan")
         won, fast = ro >= rb, o["wall_per_seed_s"] <= b["wall_per_seed_s"]
-        cell = f"{ro:.1f} ± {np.std(o['returns']):.1f}"
+        cell = f"{ro:.1f} ± {np.std(same):.1f}" if same else "not measured"
+        mean_cell = f"{np.mean(mean):.1f} ± {np.std(mean):.1f}" if mean else "not measured"
         wall = f"{o['wall_per_seed_s']:.0f}"
         short = len(b["returns"]) < result["brax_seeds"] and not np.isnan(rb)  # a killed run: the seeds it finished
         seeds_done = f" ({len(b['returns'])} of {result['brax_seeds']} seeds)" if short else ""
-        out.append(f"| {t['task']} | {o['env_steps']:,} | {rb:.1f} ± {np.std(b['returns']):.1f}{seeds_done} "
-                   f"| {'**' + cell + '**' if won else cell} | {b['wall_per_seed_s']:.0f} "
-                   f"| {'**' + wall + '**' if fast else wall} | {b['env_steps_per_s']:,.0f} "
-                   f"| {o['env_steps_per_s']:,.0f} | {ro / rb if rb else float('nan'):.2f} |")  # fmt: skip
+        mode_word = "" if np.isnan(rb) else f" ({words[mode]})"
+        out.append(f"| {t['task']} | {o['env_steps']:,} | {rb:.1f} ± {np.std(b['returns']):.1f}{mode_word}"
+                   f"{seeds_done} | {'**' + cell + '**' if won else cell} | {mean_cell} "
+                   f"| {b['wall_per_seed_s']:.0f} | {'**' + wall + '**' if fast else wall} "
+                   f"| {b['env_steps_per_s']:,.0f} | {o['env_steps_per_s']:,.0f} "
+                   f"| {ro / rb if rb else float('nan'):.2f} |")  # fmt: skip
     out.append("")
     for t in result["tasks"]:
         out.append(f"![{t['task']}]({os.path.basename(result['figures'])}/{t['task']}.png)")
@@ -201,6 +237,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--steps", type=int, default=0, help="env steps per seed (0: brax's budget of the task)")
     p.add_argument("--backend", default="mjx", help="brax physics backend (mjx, generalized, positional, spring)")
     p.add_argument("--eval-episodes", type=int, default=128)
+    p.add_argument("--eval-mode", default="stochastic", choices=EVAL_MODES,
+                   help="final evaluation of both sides: sampled actions (brax's default) or the mean action; "
+                   "ours is also evaluated with its mean action either way")  # fmt: skip
     p.add_argument("--num-envs", type=int, default=0, help="envs of both trainers, batch scaled alike (0: the row's)")
     p.add_argument("--row", nargs="*", default=[], metavar="KEY=VALUE",
                    help="settings of both trainers in brax's terms over the task's row (e.g. min_replay_size=1024)")
@@ -245,7 +284,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         result["tasks"].append(row)
         if not args.no_ours:
             row["ours"] = ours(env, task, settings, our_steps, args.seeds, args.eval_episodes, args.seed_map,
-                               args.algo)  # fmt: skip
+                               args.algo, args.eval_mode)  # fmt: skip
             row["sides"].append("ours")
             print(task, "ours", [round(r, 1) for r in row["ours"]["returns"]], f"{row['ours']['wall_s']:.0f} s",
                   flush=True)  # fmt: skip
@@ -256,7 +295,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                 row["brax"] = record
                 write(stem, result)
 
-            theirs(env, settings, steps, brax_seeds, ALGOS[args.algo][1], partial)
+            theirs(env, settings, steps, brax_seeds, ALGOS[args.algo][1], partial, args.eval_mode)
             print(task, "brax", [round(r, 1) for r in row["brax"]["returns"]], f"{row['brax']['wall_s']:.0f} s",
                   flush=True)  # fmt: skip
         write(stem, result, echo=task == args.tasks[-1])
@@ -265,7 +304,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 
 def missing(side: dict[str, Any]) -> dict[str, Any]:
     """A side that did not run: NaN returns, no curves, the other side's steps (for the table's columns)."""
-    return {**side, "returns": [float("nan")], "curves": [], "wall_s": float("nan"),
+    return {**side, "returns": [float("nan")], "returns_deterministic": [float("nan")], "curves": [],
+            "wall_s": float("nan"),
             "wall_per_seed_s": float("nan"), "env_steps_per_s": float("nan")}  # fmt: skip
 
 

@@ -1,7 +1,8 @@
-"""Test episodes with a deterministic policy and their summaries.
+"""Test episodes and their summaries.
 
 * :func:`run_test_episodes` — ``E`` independent episodes (vmapped, one ``lax.scan``) of an
-  *unbatched* env with the policy's mean action; returns every episode's final metrics.
+  *unbatched* env with a policy (the mean action, or :func:`sampling_policy`'s draws);
+  returns every episode's final metrics.
 * :func:`summarize_episodes` — success rate, mean extra distance (arm7, thesis §4.1.3) and
   mean return.
 * :func:`precision_summary` — success at tighter goal thresholds (5, 2, 1 cm) from the episodes'
@@ -12,6 +13,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import jax
@@ -19,18 +21,46 @@ import jax.numpy as jnp
 import numpy as np
 from brax.envs.base import Env
 
+from jaxrl_robot.networks import gaussian_sample
 from jaxrl_robot.types import Policy, RecurrentPolicy, as_recurrent
 
 __all__ = [
     "PRECISION_THRESHOLDS",
     "precision_summary",
     "run_test_episodes",
+    "sampling_policy",
     "summarize_episodes",
     "tracking_error_sums",
 ]
 
 PRECISION_THRESHOLDS = (0.05, 0.02, 0.01)
 """Goal thresholds (m) at which :func:`precision_summary` reports success."""
+
+
+def sampling_policy(
+    dist: Callable[[Any, jax.Array], tuple[Any, tuple[jax.Array, jax.Array]]],
+    carry: Any,
+    key: jax.Array,
+    to_env: Callable[[jax.Array], jax.Array] = lambda a: a,
+) -> RecurrentPolicy:
+    """A :class:`RecurrentPolicy` that draws its actions from a diagonal Gaussian.
+
+    Args:
+      dist: ``(memory, obs [E, D]) -> (memory, (mean, log_std) [E, A])`` (``memory`` ``()`` for a
+        feed-forward policy).
+      carry: the memory an episode starts from.
+      key: a raw PRNG key (``[2]`` uint32); a batch of episodes shares one stream of keys and draws
+        one normal per episode and action dimension at each step.
+      to_env: applied to the sample before the env receives it (e.g. ``jnp.tanh`` or a clip).
+    """
+
+    def step(c: tuple[Any, jax.Array], obs: jax.Array) -> tuple[tuple[Any, jax.Array], jax.Array]:
+        memory, keys = c
+        nxt, sub = jax.random.split(keys.reshape(-1, keys.shape[-1])[0])
+        memory, (mean, log_std) = dist(memory, obs)
+        return (memory, jnp.broadcast_to(nxt, keys.shape)), to_env(gaussian_sample(sub, mean, log_std))
+
+    return RecurrentPolicy((carry, key), step)
 
 
 def run_test_episodes(

@@ -100,6 +100,8 @@ class Trainer(NamedTuple):
         action for evaluation.
       num_updates: chunks in the whole run.
       env_steps_per_update: environment steps consumed by one ``update``.
+      sample_policy: ``(state, key) -> RecurrentPolicy`` acting as in training (actions drawn from the
+        stochastic policy, passed on as the env receives them), or None for a trainer without one.
     """
 
     init: Callable[[jax.Array], Any]
@@ -107,3 +109,4 @@ class Trainer(NamedTuple):
     policy: Callable[[Any], Policy | RecurrentPolicy]
     num_updates: int
     env_steps_per_update: int
+    sample_policy: Callable[[Any, jax.Array], RecurrentPolicy] | None = None

@@ -20,11 +20,12 @@ def test_our_ppo_trains_brax_s_count_of_env_steps_by_hand():
     assert brax_tasks.brax_ppo_steps(BRAX_PPO["halfcheetah"], 50_000_000) == 9 * 17 * 327_680
 
 
-def _part(tmp_path, name, side, returns, wall):
-    """A results file of one invocation that ran only ``side`` on inverted_pendulum."""
+def _part(tmp_path, name, side, returns, wall, **fields):
+    """A results file of one invocation that ran only ``side`` on inverted_pendulum (``fields``: more of the
+    side's record, e.g. ``eval_mode``; without it, a record as written before the mode was recorded)."""
     run = {"returns": returns, "wall_s": wall * len(returns), "wall_per_seed_s": wall, "env_steps": 300,
            "env_steps_per_s": 300 * len(returns) / (wall * len(returns)), "curve_steps": [100, 200, 300],
-           "curves": [[1.0, 2.0, r] for r in returns]}  # fmt: skip
+           "curves": [[1.0, 2.0, r] for r in returns], **fields}  # fmt: skip
     prov = provenance.record("benchmarks.brax_tasks", [name], device_info={"name": "X", "platform": "gpu"})
     part = {"benchmark": "brax_tasks", "algo": "ppo", "provenance": prov, "device": "gpu-x", "backend": "mjx",
             "seeds": len(returns), "seed_map": "vmap", "brax_seeds": len(returns), "eval_episodes": 8,
@@ -36,16 +37,19 @@ def _part(tmp_path, name, side, returns, wall):
 
 
 def test_merge_takes_each_side_from_the_invocation_that_ran_it(tmp_path):
-    ours = _part(tmp_path, "ours", "ours", [1000.0, 990.0, 980.0], 10.0)
-    brax = _part(tmp_path, "brax", "brax", [900.0, 1000.0, 950.0], 50.0)
+    sampled = dict(eval_mode="stochastic")
+    ours = _part(tmp_path, "ours", "ours", [1000.0, 990.0, 980.0], 10.0, returns_deterministic=[1000.0] * 3, **sampled)
+    brax = _part(tmp_path, "brax", "brax", [900.0, 1000.0, 950.0], 50.0, **sampled)
     out = tmp_path / "out"
     result = brax_tasks.main(["--merge", ours, brax, "--out", str(out)])
     (row,) = result["tasks"]
     assert row["sides"] == ["ours", "brax"] and row["ours"]["returns"] == [1000.0, 990.0, 980.0]
     assert row["brax"]["returns"] == [900.0, 1000.0, 950.0]
     md = (out / "gpu-x-brax_tasks.md").read_text()
-    # ours 990.0 ± 8.2 ≥ brax 950.0 ± 40.8 (bold: at the goal), wall per seed 10 ≤ 50 (bold), ratio 990 / 950
-    assert "| inverted_pendulum | 300 | 950.0 ± 40.8 | **990.0 ± 8.2** | 50 | **10** | 6 | 30 | 1.04 |" in md
+    # both sampled: ours 990.0 ± 8.2 ≥ brax 950.0 ± 40.8 (bold: at the goal), our mean action's 1000 beside,
+    # wall per seed 10 ≤ 50 (bold), ratio 990 / 950
+    assert ("| inverted_pendulum | 300 | 950.0 ± 40.8 (sampled) | **990.0 ± 8.2** | 1000.0 ± 0.0 | 50 | **10** "
+            "| 6 | 30 | 1.04 |") in md
     assert "Invocation 3 of 3" in md and "Merged from 2 invocations" in md
     assert (out / "gpu-x-brax_tasks-figures" / "inverted_pendulum.png").exists()
     saved = json.loads((out / "gpu-x-brax_tasks.json").read_text())
@@ -57,7 +61,23 @@ def test_an_invocation_of_one_side_reports_the_other_as_not_run(tmp_path):
     result = brax_tasks.main(["--merge", ours, "--out", str(tmp_path / "out")])
     assert "brax" not in result["tasks"][0]
     md = (tmp_path / "out" / "gpu-x-brax_tasks.md").read_text()
-    assert "| inverted_pendulum | 300 | nan ± nan | 1000.0 ± 0.0 | nan | 10 |" in md
+    assert "| inverted_pendulum | 300 | nan ± nan | not measured | 1000.0 ± 0.0 | nan | 10 |" in md
+
+
+def test_returns_are_compared_in_one_evaluation_mode(tmp_path):
+    # Records without a mode: ours is its mean action, brax's its sampled actions (brax's default), so the
+    # same-mode cell is not measured and nothing is bold for the return.
+    ours = _part(tmp_path, "ours", "ours", [1000.0], 10.0)
+    brax = _part(tmp_path, "brax", "brax", [900.0], 50.0)
+    brax_tasks.main(["--merge", ours, brax, "--out", str(tmp_path / "old")])
+    md = (tmp_path / "old" / "gpu-x-brax_tasks.md").read_text()
+    assert "| 900.0 ± 0.0 (sampled) | not measured | 1000.0 ± 0.0 | 50 | **10** | 6 | 30 | nan |" in md
+    # brax evaluated with its mean action (--eval-mode deterministic): compared with our mean action's returns.
+    ours = _part(tmp_path, "ours2", "ours", [800.0], 10.0, eval_mode="stochastic", returns_deterministic=[950.0])
+    brax = _part(tmp_path, "brax2", "brax", [900.0], 50.0, eval_mode="deterministic")
+    brax_tasks.main(["--merge", ours, brax, "--out", str(tmp_path / "new")])
+    md = (tmp_path / "new" / "gpu-x-brax_tasks.md").read_text()
+    assert "| 900.0 ± 0.0 (mean action) | **950.0 ± 0.0** | 950.0 ± 0.0 | 50 | **10** | 6 | 30 | 1.06 |" in md
 
 
 def test_a_killed_brax_run_keeps_the_seeds_it_finished(tmp_path):
@@ -69,7 +89,7 @@ def test_a_killed_brax_run_keeps_the_seeds_it_finished(tmp_path):
     part["brax_seeds"] = 3
     open(brax, "w").write(json.dumps(part))
     brax_tasks.main(["--merge", brax, "--out", str(tmp_path / "out")])
-    assert "| 900.0 ± 0.0 (1 of 3 seeds) |" in (tmp_path / "out" / "gpu-x-brax_tasks.md").read_text()
+    assert "| 900.0 ± 0.0 (sampled) (1 of 3 seeds) |" in (tmp_path / "out" / "gpu-x-brax_tasks.md").read_text()
 
 
 def test_action_wrappers_hand_the_env_the_clipped_or_squashed_action_and_brax_s_preset_clips():

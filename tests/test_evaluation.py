@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import envs_mjx
-from jaxrl_robot.evaluation import precision_summary, run_test_episodes, summarize_episodes
+from jaxrl_robot.evaluation import precision_summary, run_test_episodes, sampling_policy, summarize_episodes
 from train.common import evaluate
 
 
@@ -58,3 +58,21 @@ def test_race_evaluation_counts_laps_per_road():
     assert out["kind"] == "racing" and out["laps_per_road"] == 2 and out["success_rate"] == 0.0
     for road in ("train", "test1", "test2", "test3"):
         assert out[f"{road}/stalled"] == 2 and out[f"{road}/success"] == 0 and out[f"{road}/collision"] == 0
+
+
+def test_sampling_policy_draws_from_the_gaussian_per_episode_and_step_and_applies_to_env():
+    mean, log_std = jnp.array([0.5, -2.0]), jnp.log(jnp.array([0.3, 0.1]))
+
+    def dist(memory, obs):  # a fixed Gaussian; the memory counts the steps
+        return memory + 1, (jnp.broadcast_to(mean, obs.shape), jnp.broadcast_to(log_std, obs.shape))
+
+    policy = sampling_policy(dist, jnp.zeros(()), jax.random.PRNGKey(0), lambda a: jnp.clip(a, -1.0, 1.0))
+    carry = jax.tree.map(lambda c: jnp.broadcast_to(c, (20_000,) + jnp.shape(c)), policy.carry)  # as for E episodes
+    carry, a1 = policy.step(carry, jnp.zeros((20_000, 2)))
+    carry, a2 = policy.step(carry, jnp.zeros((20_000, 2)))
+    assert carry[0].shape == (20_000,) and float(carry[0][0]) == 2.0 and carry[1].shape == (20_000, 2)
+    np.testing.assert_allclose(np.mean(a1[:, 0]), 0.5, atol=0.01)  # N(0.5, 0.3²), inside the clip
+    np.testing.assert_allclose(np.std(a1[:, 0]), 0.3, atol=0.01)
+    np.testing.assert_array_equal(a1[:, 1], -1.0)  # N(-2, 0.1²) clipped by to_env
+    # the spread above is across episodes (one draw each); the next step draws afresh, uncorrelated
+    assert abs(np.corrcoef(a1[:, 0], a2[:, 0])[0, 1]) < 0.03

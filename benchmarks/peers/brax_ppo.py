@@ -99,15 +99,17 @@ def run_brax_ppo(
 
 
 def train_published(
-    env: Any, row: dict[str, float], num_timesteps: int, seed: int = 0, algo: str = "ppo"
-) -> dict[str, Any]:
+    env: Any, row: dict[str, float], num_timesteps: int, seed: int = 0, algo: str = "ppo",
+    deterministic_eval: bool = False,
+) -> dict[str, Any]:  # fmt: skip
     """brax's ``ppo.train`` (or, with ``algo='sac'``, ``sac.train``) with a task's published settings (``row``:
     brax's own argument names, a row of ``train.presets.BRAX_PPO`` or ``BRAX_SAC``) for ``num_timesteps``
     env steps; brax's default networks, normalised observations, 10 evaluations.
 
-    Returns ``final_return`` (brax's last ``eval/episode_reward``: 128 episodes; PPO's deterministic
-    policy, SAC's stochastic one, brax's default), ``curve_steps`` / ``curve`` (every evaluation),
-    ``wall_s`` (the whole call, compilation included) and ``env_steps`` (brax's count at its last evaluation).
+    Returns ``final_return`` (brax's last ``eval/episode_reward``: 128 episodes of the policy's sampled
+    actions, brax's default, or with ``deterministic_eval`` of its mode), ``curve_steps`` / ``curve``
+    (every evaluation), ``wall_s`` (the whole call, compilation included) and ``env_steps`` (brax's count
+    at its last evaluation).
     """
     if algo == "ppo":
         from brax.training.agents.ppo import train as trainer
@@ -139,6 +141,7 @@ def train_published(
         num_timesteps=int(num_timesteps),
         num_evals=10,
         normalize_observations=True,
+        deterministic_eval=deterministic_eval,
         action_repeat=1,
         discounting=float(row["discounting"]),
         reward_scaling=float(row["reward_scaling"]),

@@ -273,10 +273,12 @@ class Setup(NamedTuple):
         lanes = parallel.P(parallel.LANES)
         return parallel.shard_lanes(reset_lanes, self.mesh, lanes, lanes)(jax.random.split(key, self.num_envs))
 
-    def trainer(self, init: Callable, update: Callable, policy: Callable[[Any], Policy]) -> Trainer:
+    def trainer(
+        self, init: Callable, update: Callable, policy: Callable[[Any], Policy], sample_policy: Callable | None = None
+    ) -> Trainer:
         """The :class:`~jaxrl_robot.types.Trainer` of these functions with this run's counts."""
         steps = self.steps_per_iteration * self.iterations_per_update
-        return Trainer(init, update, policy, num_updates=self.num_updates, env_steps_per_update=steps)
+        return Trainer(init, update, policy, self.num_updates, steps, sample_policy)
 
 
 def setup(

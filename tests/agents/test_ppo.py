@@ -193,6 +193,11 @@ def test_tanh_actions_act_with_tanh_of_the_mean_of_a_state_dependent_swish_actor
     (mean, log_std), _ = apply_actor(actor, state.actor_params, {}, normalize(state.obs_stats, obs))
     np.testing.assert_allclose(trainer.policy(state)(obs), jnp.tanh(mean), rtol=1e-6)
     assert not np.allclose(log_std[0], log_std[1])  # σ depends on the state
+    sampled = trainer.sample_policy(state, jax.random.PRNGKey(1))
+    many = jnp.tile(obs[:1], (4000, 1))
+    _, actions = sampled.step(jax.tree.map(lambda c: jnp.broadcast_to(c, (4000,) + c.shape), sampled.carry), many)
+    u = np.arctanh(np.asarray(actions[:, 0]))  # the env receives tanh of N(mean, σ²)
+    np.testing.assert_allclose([u.mean(), u.std()], [mean[0, 0], np.exp(log_std[0, 0])], atol=0.05)
 
 
 def test_kl_beta_follows_the_halve_double_rule_in_training(toy):

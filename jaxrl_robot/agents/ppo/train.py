@@ -42,6 +42,7 @@ from jaxrl_robot.agents.ppo.config import PPOConfig
 from jaxrl_robot.agents.ppo.losses import adapt_kl_beta, make_actor_loss, value_loss
 from jaxrl_robot.agents.ppo.nets import make_ppo_nets
 from jaxrl_robot.agents.ppo.pretrain import action_search, make_imitation_update, model_reward_of
+from jaxrl_robot.evaluation import sampling_policy
 from jaxrl_robot.networks import gaussian_kl, init_running_stats, normalize, update_running_stats
 from jaxrl_robot.recurrent import table_lookup, table_update
 from jaxrl_robot.returns import gae, lambda_returns
@@ -355,26 +356,30 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
     specs = common.state_specs(PPOState, env_state=parallel.P(_LANES), memory=parallel.P(_LANES))
     update = parallel.shard_lanes(chunk, run.mesh, in_specs=(specs,), out_specs=(specs, parallel.P()))
 
-    def acted(mean: jax.Array) -> jax.Array:
-        """The deterministic action of ``mean``: clipped or squashed as the env's actions are
-        (``clip_actions``, ``tanh_actions``)."""
+    def acted(action: jax.Array) -> jax.Array:
+        """``action`` as the env receives it: clipped or squashed (``clip_actions``, ``tanh_actions``)."""
         if config.tanh_actions:
-            return jnp.tanh(mean)
-        return jnp.clip(mean, -1.0, 1.0) if config.clip_actions else mean
+            return jnp.tanh(action)
+        return jnp.clip(action, -1.0, 1.0) if config.clip_actions else action
+
+    def episode_start(state: PPOState) -> Any:
+        """The memory one episode starts from at t = 0: the table's entry for step 0 (zeros), or ``()``."""
+        return jax.tree.map(lambda x: x[0], state.start_table) if use_table else nets.memory(())
 
     def policy(state: PPOState) -> Policy | RecurrentPolicy:
         if config.policy == "mlp":
             return lambda obs: acted(act(state, (), obs)[1][0])
-        # One episode from t = 0: the table's entry for step 0 (zeros), carried through the episode.
-        carry = jax.tree.map(lambda x: x[0], state.start_table) if use_table else nets.memory(())
 
         def step(memory: Any, obs: jax.Array) -> tuple[Any, jax.Array]:
             memory, (mean, _) = act(state, memory, obs)
             return memory, acted(mean)
 
-        return RecurrentPolicy(carry, step)
+        return RecurrentPolicy(episode_start(state), step)
 
-    return run.trainer(init, update, policy)
+    def sample_policy(state: PPOState, key: jax.Array) -> RecurrentPolicy:
+        return sampling_policy(lambda memory, obs: act(state, memory, obs), episode_start(state), key, acted)
+
+    return run.trainer(init, update, policy, sample_policy)
 
 
 make_train = common.make_train_for(make_trainer)
