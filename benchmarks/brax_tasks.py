@@ -28,8 +28,8 @@ program called per seed (``--seed-map vmap``: one vmapped program), brax's one a
   with the mean action beside it. Mean ± std over seeds; the goal compares returns of the same mode.
 * **wall**: from the call to the trained parameters, compilation included (per seed: the seeds' total
   over their number); brax's includes the 10 evaluations its ``ppo.train`` runs along the way
-  (128 episodes each), ours has no evaluation inside training; **env steps/s**: env steps of all
-  seeds over that wall time.
+  (128 episodes each), ours its evaluations at the same points (:func:`eval_points`); **env steps/s**:
+  env steps of all seeds over that wall time.
 
 Goals: per task our return ≥ brax's and our wall per seed ≤ brax's. Results:
 ``benchmarks/results/<device>-brax_tasks[-<algo>].json`` and ``.md`` with one learning-curve figure per task.
@@ -46,6 +46,7 @@ from collections.abc import Callable
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from benchmarks import provenance
@@ -109,45 +110,73 @@ def our_returns(side: dict[str, Any], mode: str) -> list[float] | None:
     return side.get("returns_deterministic") if mode == "deterministic" else None
 
 
+def eval_points(num_updates: int, evals: int = 10) -> list[int]:
+    """The updates done at each evaluation: 0, then ``evals - 1`` points spread evenly to the end (as
+    brax's ``ppo.train`` evaluates ``num_evals`` times)."""
+    return sorted({round(i * num_updates / max(evals - 1, 1)) for i in range(evals)})
+
+
 def ours(env: Any, task: str, row: dict[str, float], steps: int, seeds: int, eval_episodes: int,
          seed_map: str = "loop", algo: str = "ppo", mode: str = "stochastic") -> dict[str, Any]:  # fmt: skip
     """Train our ``algo`` on ``seeds`` keys, one vmapped program (``seed_map='vmap'``) or one compiled
-    program called per key (``'loop'``); returns (evaluation ``mode`` where the trainer can sample, and the
-    mean action's as ``returns_deterministic``), curves and wall time (compilation included)."""
+    program called per key (``'loop'``), evaluating at the :func:`eval_points` (as brax does) in ``mode``
+    where the trainer can sample, and with the mean action; returns, evaluation curves, training-episode
+    curves and wall time (compilation and the evaluations included, as brax's)."""
     trainer, episode_length = our_trainer(algo, task, env, row, steps)
     sampled = mode == "stochastic" and trainer.sample_policy is not None
+    points = eval_points(trainer.num_updates)
 
-    def train(key: jax.Array) -> tuple[Any, Any]:
-        state = trainer.init(key)
-        return jax.lax.scan(lambda s, _: trainer.update(s), state, None, length=trainer.num_updates)
+    def segment(state: Any, buf: jax.Array, start: jax.Array, n: jax.Array) -> tuple[Any, jax.Array]:
+        """``n`` updates from update ``start`` on, each chunk's training-episode return written to ``buf``."""
+
+        def body(i: jax.Array, carry: tuple[Any, jax.Array]) -> tuple[Any, jax.Array]:
+            state, buf = carry
+            state, metrics = trainer.update(state)
+            return state, buf.at[start + i].set(metrics["episode_return"])
+
+        return jax.lax.fori_loop(0, n, body, (state, buf))
 
     def test(state: Any, key: jax.Array) -> tuple[jax.Array, jax.Array]:
         mean = run_test_episodes(key, env, trainer.policy(state), eval_episodes, episode_length)["return"]
         if not sampled:
-            return mean, mean
+            return jnp.mean(mean), jnp.mean(mean)
         policy = trainer.sample_policy(state, jax.random.fold_in(key, 1))
-        return run_test_episodes(key, env, policy, eval_episodes, episode_length)["return"], mean
+        return jnp.mean(run_test_episodes(key, env, policy, eval_episodes, episode_length)["return"]), jnp.mean(mean)
+
+    def run(init_fn: Callable, seg_fn: Callable, test_fn: Callable, keys: jax.Array, eval_keys: jax.Array):
+        """Train from ``keys`` (one seed, or ``[S]`` with the vmapped functions) with an evaluation at every point."""
+        state = init_fn(keys)
+        buf = jnp.full(keys.shape[:-1] + (trainer.num_updates,), jnp.nan, jnp.float32)
+        curve, curve_mean, done = [], [], 0
+        for p in points:
+            if p > done:
+                state, buf = seg_fn(state, buf, done, p - done)
+                done = p
+            r, m = jax.block_until_ready(test_fn(state, eval_keys))
+            curve.append(np.asarray(r))
+            curve_mean.append(np.asarray(m))
+        return np.stack(curve, -1), np.stack(curve_mean, -1), np.asarray(buf)
 
     keys, eval_keys = jax.random.split(jax.random.PRNGKey(0), seeds), jax.random.split(jax.random.PRNGKey(1), seeds)
     t0 = time.perf_counter()
     if seed_map == "vmap":
-        states, metrics = jax.block_until_ready(jax.jit(jax.vmap(train))(keys))
-        wall = time.perf_counter() - t0
-        returns, means = (np.asarray(r).mean(axis=1) for r in jax.jit(jax.vmap(test))(states, eval_keys))
-        per_chunk = np.asarray(metrics["episode_return"])  # [seeds, chunks]: training episodes (NaN: none ended)
+        curves, curves_mean, per_chunk = run(jax.jit(jax.vmap(trainer.init)),
+                                             jax.jit(jax.vmap(segment, in_axes=(0, 0, None, None))),
+                                             jax.jit(jax.vmap(test)), keys, eval_keys)  # fmt: skip
     else:
-        train_one, test_one = jax.jit(train), jax.jit(test)
-        runs = [jax.block_until_ready(train_one(k)) for k in keys]
-        wall = time.perf_counter() - t0
-        tests = [test_one(st, k) for (st, _), k in zip(runs, eval_keys, strict=True)]
-        returns, means = (np.array([float(np.mean(t[i])) for t in tests]) for i in (0, 1))
-        per_chunk = np.stack([np.asarray(m["episode_return"]) for _, m in runs])
-    done = trainer.env_steps_per_update * (np.arange(per_chunk.shape[1]) + 1)
-    return {"returns": returns.tolist(), "eval_mode": "stochastic" if sampled else "deterministic",
-            "returns_deterministic": means.tolist(),
+        init_one, seg_one, test_one = jax.jit(trainer.init), jax.jit(segment), jax.jit(test)
+        runs = [run(init_one, seg_one, test_one, k, ek) for k, ek in zip(keys, eval_keys, strict=True)]
+        curves, curves_mean, per_chunk = (np.stack([r[i] for r in runs]) for i in range(3))
+    wall = time.perf_counter() - t0
+    per_update = trainer.env_steps_per_update
+    done = per_update * (np.arange(trainer.num_updates) + 1)
+    return {"returns": curves[:, -1].tolist(), "eval_mode": "stochastic" if sampled else "deterministic",
+            "returns_deterministic": curves_mean[:, -1].tolist(),
             "wall_s": wall, "wall_per_seed_s": wall / seeds, "seed_map": seed_map,
             "env_steps": int(done[-1]), "env_steps_per_s": seeds * done[-1] / wall,
-            "curve_steps": done.tolist(), "curves": per_chunk.tolist()}  # fmt: skip
+            "curve_kind": "evaluation", "curve_steps": [per_update * p for p in points], "curves": curves.tolist(),
+            "curves_deterministic": curves_mean.tolist(),
+            "training_curve_steps": done.tolist(), "training_curves": per_chunk.tolist()}  # fmt: skip
 
 
 def theirs(env: Any, row: dict[str, float], steps: int, seeds: int, peer: str = "ppo",
@@ -215,8 +244,12 @@ def to_markdown(result: dict[str, Any]) -> str:
 
 
 def figure(task: dict[str, Any], out_dir: str) -> str | None:
-    """Ours: mean return of the training episodes that ended in each chunk; brax: its evaluations."""
-    labels = {"ours": "ours: training episodes, sampled actions", "brax": "brax: its evaluations, deterministic"}
+    """Each side's evaluations (our records from before evaluations along training: the mean return of
+    the training episodes that ended in each chunk), labelled with the mode they were measured in."""
+    words = {"stochastic": "sampled actions", "deterministic": "mean action"}
+    labels = {"ours": f"ours: evaluations, {words[eval_mode(task['ours'], 'ours')]}"
+              if task["ours"].get("curve_kind") == "evaluation" else "ours: training episodes, sampled actions",
+              "brax": f"brax: evaluations, {words[eval_mode(task['brax'], 'brax')]}"}  # fmt: skip
     curves = {
         labels[name]: [[{"env_steps": x, "episode_return": y}
                         for x, y in zip(task[name]["curve_steps"], seed, strict=True)]

@@ -112,3 +112,35 @@ def test_action_wrappers_hand_the_env_the_clipped_or_squashed_action_and_brax_s_
     squash = TanhActionWrapper(Echo())
     out = squash.step(squash.reset(None), jnp.array([-3.0, 0.25, 0.0]))
     np.testing.assert_allclose(out.obs, [-0.99505475, 0.24491866, 0.0], rtol=1e-6)  # tanh by hand
+
+
+def test_eval_points_spread_brax_s_ten_evaluations_over_the_updates():
+    assert brax_tasks.eval_points(18) == [0, 2, 4, 6, 8, 10, 12, 14, 16, 18]
+    assert brax_tasks.eval_points(4) == [0, 1, 2, 3, 4]  # fewer updates than evaluations: each update once
+    assert brax_tasks.eval_points(27) == [0, 3, 6, 9, 12, 15, 18, 21, 24, 27]
+
+
+def test_ours_evaluates_along_training_without_changing_it():
+    """Training in segments with evaluations between them ends where one uninterrupted run ends: the
+    final mean-action return equals that of the same trainer run in one go (same keys)."""
+    import jax
+
+    from jaxrl_robot.evaluation import run_test_episodes
+    from tests.agents.test_ppo import Line
+
+    env, row = Line(), brax_tasks.brax_row("inverted_pendulum", 8)
+    out = brax_tasks.ours(env, "inverted_pendulum", row, 1920, seeds=1, eval_episodes=4)
+    trainer, length = brax_tasks.our_trainer("ppo", "inverted_pendulum", env, row, 1920)
+    assert trainer.num_updates == 3 and out["curve_steps"] == [0, 640, 1280, 1920]
+    assert out["curve_kind"] == "evaluation" and out["eval_mode"] == "stochastic"
+    assert np.shape(out["curves"]) == (1, 4) and out["returns"] == [out["curves"][0][-1]]
+    assert np.isfinite(out["curves_deterministic"]).all() and np.shape(out["training_curves"]) == (1, 3)
+
+    def whole(key):
+        state = trainer.init(key)
+        return jax.lax.scan(lambda s, _: trainer.update(s), state, None, length=trainer.num_updates)[0]
+
+    state = jax.jit(whole)(jax.random.split(jax.random.PRNGKey(0), 1)[0])
+    key = jax.random.split(jax.random.PRNGKey(1), 1)[0]
+    expect = float(np.mean(run_test_episodes(key, env, trainer.policy(state), 4, length)["return"]))
+    np.testing.assert_allclose(out["returns_deterministic"][0], expect, rtol=1e-5)
