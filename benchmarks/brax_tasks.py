@@ -52,6 +52,7 @@ import numpy as np
 from benchmarks import provenance
 from benchmarks.tracking_report import pairs
 from benchmarks.train_throughput import RESULTS, device_label
+from envs_mjx.config import ConfigError, apply_overrides
 from jaxrl_robot import plots
 from jaxrl_robot.agents import ddpg, ppo
 from jaxrl_robot.evaluation import run_test_episodes
@@ -83,13 +84,25 @@ def brax_ppo_steps(row: dict[str, float], steps: int, num_evals: int = 10) -> in
     return epochs * per_step * math.ceil(steps / (epochs * per_step))
 
 
-def our_trainer(algo: str, task: str, env: Any, row: dict[str, float], steps: int) -> tuple[Trainer, int]:
-    """Our trainer of ``algo`` with the task's ``row`` for ``steps`` env steps, and its episode length."""
+def our_config(algo: str, task: str, action_size: int, row: dict[str, float], steps: int,
+               overrides: dict[str, Any] | None = None) -> Any:  # fmt: skip
+    """Our validated config of ``algo`` for the task's ``row`` and ``steps`` env steps, with ``overrides``
+    (fields of :class:`PPOConfig` or :class:`DDPGConfig`) over it; ``ConfigError`` naming a bad one."""
     if algo == "ppo":
-        config = brax_ppo_config(task, int(env.action_size), **row).replace(total_steps=steps)
+        config = brax_ppo_config(task, action_size, **row)
+    else:
+        config = brax_sac_ddpg_config(task, **row)
+        config = config.replace(**TD3_SETTINGS) if algo == "td3" else config
+    return apply_overrides(config.replace(total_steps=steps), overrides or {}, type(config).__name__).validate()
+
+
+def our_trainer(algo: str, task: str, env: Any, row: dict[str, float], steps: int,
+                overrides: dict[str, Any] | None = None) -> tuple[Trainer, int]:  # fmt: skip
+    """Our trainer of ``algo`` with the task's ``row`` (and ``overrides``, see :func:`our_config`) for
+    ``steps`` env steps, and its episode length."""
+    config = our_config(algo, task, int(env.action_size), row, steps, overrides)
+    if algo == "ppo":
         return ppo.make_trainer(config, env), config.episode_length
-    config = brax_sac_ddpg_config(task, **row).replace(total_steps=steps)
-    config = (config.replace(**TD3_SETTINGS) if algo == "td3" else config).validate()
     return ddpg.make_trainer(config, env, iterations_per_update=max(1, config.iterations // 20)), config.episode_length
 
 
@@ -117,12 +130,13 @@ def eval_points(num_updates: int, evals: int = 10) -> list[int]:
 
 
 def ours(env: Any, task: str, row: dict[str, float], steps: int, seeds: int, eval_episodes: int,
-         seed_map: str = "loop", algo: str = "ppo", mode: str = "stochastic") -> dict[str, Any]:  # fmt: skip
+         seed_map: str = "loop", algo: str = "ppo", mode: str = "stochastic",
+         overrides: dict[str, Any] | None = None) -> dict[str, Any]:  # fmt: skip
     """Train our ``algo`` on ``seeds`` keys, one vmapped program (``seed_map='vmap'``) or one compiled
     program called per key (``'loop'``), evaluating at the :func:`eval_points` (as brax does) in ``mode``
     where the trainer can sample, and with the mean action; returns, evaluation curves, training-episode
     curves and wall time (compilation and the evaluations included, as brax's)."""
-    trainer, episode_length = our_trainer(algo, task, env, row, steps)
+    trainer, episode_length = our_trainer(algo, task, env, row, steps, overrides)
     sampled = mode == "stochastic" and trainer.sample_policy is not None
     points = eval_points(trainer.num_updates)
 
@@ -176,7 +190,8 @@ def ours(env: Any, task: str, row: dict[str, float], steps: int, seeds: int, eva
             "env_steps": int(done[-1]), "env_steps_per_s": seeds * done[-1] / wall,
             "curve_kind": "evaluation", "curve_steps": [per_update * p for p in points], "curves": curves.tolist(),
             "curves_deterministic": curves_mean.tolist(),
-            "training_curve_steps": done.tolist(), "training_curves": per_chunk.tolist()}  # fmt: skip
+            "training_curve_steps": done.tolist(), "training_curves": per_chunk.tolist(),
+            "overrides": dict(overrides or {})}  # fmt: skip
 
 
 def theirs(env: Any, row: dict[str, float], steps: int, seeds: int, peer: str = "ppo",
@@ -239,6 +254,10 @@ def to_markdown(result: dict[str, Any]) -> str:
                    f"| {ro / rb if rb else float('nan'):.2f} |")  # fmt: skip
     out.append("")
     for t in result["tasks"]:
+        if t["ours"].get("overrides"):
+            given = " ".join(f"{k}={v}" for k, v in t["ours"]["overrides"].items())
+            out += [f"Ours on {t['task']} with `--ours {given}` over the preset.", ""]
+    for t in result["tasks"]:
         out.append(f"![{t['task']}]({os.path.basename(result['figures'])}/{t['task']}.png)")
     return "\n".join(out) + "\n"
 
@@ -276,6 +295,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--num-envs", type=int, default=0, help="envs of both trainers, batch scaled alike (0: the row's)")
     p.add_argument("--row", nargs="*", default=[], metavar="KEY=VALUE",
                    help="settings of both trainers in brax's terms over the task's row (e.g. min_replay_size=1024)")
+    p.add_argument("--ours", nargs="*", default=[], metavar="KEY=VALUE",
+                   help="our config's fields over the preset (PPOConfig / DDPGConfig), e.g. activation=swish "
+                   "tanh_actions=true clip_actions=false")  # fmt: skip
     p.add_argument("--no-brax", action="store_true", help="ours only")
     p.add_argument("--no-ours", action="store_true", help="brax's only (e.g. on another GPU, then --merge)")
     p.add_argument("--merge", nargs="+", default=None, metavar="JSON",
@@ -296,6 +318,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     unknown = [t for t in args.tasks if t not in table]
     if unknown:
         p.error(f"--tasks {unknown[0]!r}: no brax settings for --algo {args.algo}; valid: {', '.join(table)}")
+    overrides = pairs(args.ours)
+    try:  # a bad --ours field ends here with one line, before anything trains
+        our_config(args.algo, args.tasks[0], 1, brax_row(args.tasks[0], args.num_envs, args.algo), 1, overrides)
+    except ConfigError as e:
+        p.error(f"--ours: {e}")
     from brax import envs as brax_envs
 
     brax_seeds = args.brax_seeds or args.seeds
@@ -317,7 +344,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         result["tasks"].append(row)
         if not args.no_ours:
             row["ours"] = ours(env, task, settings, our_steps, args.seeds, args.eval_episodes, args.seed_map,
-                               args.algo, args.eval_mode)  # fmt: skip
+                               args.algo, args.eval_mode, overrides)  # fmt: skip
             row["sides"].append("ours")
             print(task, "ours", [round(r, 1) for r in row["ours"]["returns"]], f"{row['ours']['wall_s']:.0f} s",
                   flush=True)  # fmt: skip
@@ -338,7 +365,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 def missing(side: dict[str, Any]) -> dict[str, Any]:
     """A side that did not run: NaN returns, no curves, the other side's steps (for the table's columns)."""
     return {**side, "returns": [float("nan")], "returns_deterministic": [float("nan")], "curves": [],
-            "wall_s": float("nan"),
+            "overrides": {}, "wall_s": float("nan"),
             "wall_per_seed_s": float("nan"), "env_steps_per_s": float("nan")}  # fmt: skip
 
 

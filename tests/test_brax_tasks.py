@@ -129,12 +129,14 @@ def test_ours_evaluates_along_training_without_changing_it():
     from tests.agents.test_ppo import Line
 
     env, row = Line(), brax_tasks.brax_row("inverted_pendulum", 8)
-    out = brax_tasks.ours(env, "inverted_pendulum", row, 1920, seeds=1, eval_episodes=4)
-    trainer, length = brax_tasks.our_trainer("ppo", "inverted_pendulum", env, row, 1920)
+    given = {"activation": "swish"}
+    out = brax_tasks.ours(env, "inverted_pendulum", row, 1920, seeds=1, eval_episodes=4, overrides=given)
+    trainer, length = brax_tasks.our_trainer("ppo", "inverted_pendulum", env, row, 1920, given)
     assert trainer.num_updates == 3 and out["curve_steps"] == [0, 640, 1280, 1920]
     assert out["curve_kind"] == "evaluation" and out["eval_mode"] == "stochastic"
     assert np.shape(out["curves"]) == (1, 4) and out["returns"] == [out["curves"][0][-1]]
     assert np.isfinite(out["curves_deterministic"]).all() and np.shape(out["training_curves"]) == (1, 3)
+    assert out["overrides"] == given
 
     def whole(key):
         state = trainer.init(key)
@@ -144,3 +146,19 @@ def test_ours_evaluates_along_training_without_changing_it():
     key = jax.random.split(jax.random.PRNGKey(1), 1)[0]
     expect = float(np.mean(run_test_episodes(key, env, trainer.policy(state), 4, length)["return"]))
     np.testing.assert_allclose(out["returns_deterministic"][0], expect, rtol=1e-5)
+
+
+def test_our_config_takes_overrides_and_a_bad_one_is_a_one_line_error(capsys):
+    config = brax_tasks.our_config("ppo", "halfcheetah", 6, BRAX_PPO["halfcheetah"], 1000, {"tanh_actions": True,
+                                   "clip_actions": False, "activation": "swish"})  # fmt: skip
+    assert config.tanh_actions and not config.clip_actions and config.activation == "swish"
+    for bad, message in (("nope=1", "unknown setting 'nope'"), ("tanh_actions=true", "exclude each other")):
+        try:
+            brax_tasks.main(["--tasks", "halfcheetah", "--ours", bad])
+        except SystemExit as e:
+            assert e.code == 2
+        else:
+            raise AssertionError("a bad --ours must stop the benchmark")
+        err = capsys.readouterr().err.strip().splitlines()[-1]
+        assert err.startswith("brax_tasks.py: error: --ours:") or "error: --ours:" in err
+        assert message in err
