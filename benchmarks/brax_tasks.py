@@ -5,6 +5,8 @@ return at equal env steps, wall time, steps/s.
     python -m benchmarks.brax_tasks --tasks inverted_pendulum --seeds 3
     python -m benchmarks.brax_tasks --tasks reacher --steps 5000000    # a shorter budget for both
     python -m benchmarks.brax_tasks --algo td3 --tasks hopper --steps 1000000   # off-policy: brax's SAC beside
+    python -m benchmarks.brax_tasks --tasks halfcheetah --no-brax --ours activation=swish state_std=true \
+        tanh_actions=true clip_actions=false                           # brax's policy parametrisation
 
 Off-policy (``--algo td3`` or ``ddpg``): the tasks brax trains with SAC (:data:`train.presets.BRAX_SAC`,
 hopper and walker2d), brax's ``sac.train`` with the row as it is, ours through
