@@ -23,12 +23,13 @@ Policy = Callable[[jax.Array], jax.Array]
 
 
 class RecurrentPolicy(NamedTuple):
-    """A deterministic policy with memory (a recurrent network's carry).
+    """A policy with memory: a recurrent network's carry, or the PRNG key of a policy that samples
+    (:func:`jaxrl_robot.evaluation.sampling_policy`).
 
     Attributes:
       carry: the memory one episode starts from, unbatched (``[...]`` leaves; a batch of ``E``
         episodes broadcasts it to ``[E, ...]``).
-      step: ``(carry, obs [..., D]) -> (carry, action [..., A])``, action in [-1, 1].
+      step: ``(carry, obs [..., D]) -> (carry, action [..., A])``, the action as the env receives it.
     """
 
     carry: Any
