@@ -54,6 +54,7 @@ import numpy as np
 from benchmarks import provenance
 from benchmarks.tracking_report import pairs
 from benchmarks.train_throughput import RESULTS, device_label
+from envs_mjx.base import ActionRepeatWrapper
 from envs_mjx.config import ConfigError, apply_overrides
 from jaxrl_robot import plots
 from jaxrl_robot.agents import ddpg, ppo
@@ -79,9 +80,10 @@ def brax_row(task: str, num_envs: int, algo: str = "ppo") -> dict[str, float]:
 
 def brax_ppo_steps(row: dict[str, float], steps: int, num_evals: int = 10) -> int:
     """The env steps brax's ``ppo.train`` makes of a ``steps`` budget: whole training steps of
-    ``batch_size · num_minibatches · unroll_length`` env steps, ``ceil`` of the budget over ``num_evals − 1``
-    epochs of them (brax/training/agents/ppo/train.py), so never fewer than ``steps``."""
+    ``batch_size · num_minibatches · unroll_length · action_repeat`` env steps, ``ceil`` of the budget over
+    ``num_evals − 1`` epochs of them (brax/training/agents/ppo/train.py), so never fewer than ``steps``."""
     per_step = int(row["batch_size"]) * int(row["num_minibatches"]) * int(row["unroll_length"])
+    per_step *= int(row.get("action_repeat", 1))
     epochs = max(num_evals - 1, 1)
     return epochs * per_step * math.ceil(steps / (epochs * per_step))
 
@@ -138,7 +140,11 @@ def ours(env: Any, task: str, row: dict[str, float], steps: int, seeds: int, eva
     program called per key (``'loop'``), evaluating at the :func:`eval_points` (as brax does) in ``mode``
     where the trainer can sample, and with the mean action; returns, evaluation curves, training-episode
     curves and wall time (compilation and the evaluations included, as brax's)."""
-    trainer, episode_length = our_trainer(algo, task, env, row, steps, overrides)
+    repeat = int(row.get("action_repeat", 1))  # each decision held for `repeat` env steps, as brax's wrapper does
+    if repeat > 1:
+        env = ActionRepeatWrapper(env, repeat)
+        row = {**row, "episode_length": int(row["episode_length"]) // repeat}
+    trainer, episode_length = our_trainer(algo, task, env, row, steps // repeat, overrides)
     sampled = mode == "stochastic" and trainer.sample_policy is not None
     points = eval_points(trainer.num_updates)
 
@@ -184,7 +190,7 @@ def ours(env: Any, task: str, row: dict[str, float], steps: int, seeds: int, eva
         runs = [run(init_one, seg_one, test_one, k, ek) for k, ek in zip(keys, eval_keys, strict=True)]
         curves, curves_mean, per_chunk = (np.stack([r[i] for r in runs]) for i in range(3))
     wall = time.perf_counter() - t0
-    per_update = trainer.env_steps_per_update
+    per_update = trainer.env_steps_per_update * repeat  # env steps, as brax counts them
     done = per_update * (np.arange(trainer.num_updates) + 1)
     return {"returns": curves[:, -1].tolist(), "eval_mode": "stochastic" if sampled else "deterministic",
             "returns_deterministic": curves_mean[:, -1].tolist(),

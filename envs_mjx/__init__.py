@@ -16,10 +16,13 @@ _xla.configure()  # before the first JAX computation: keeps MJX physics fast on 
 _xla.import_mjx_quietly()  # without the two "Failed to import warp" lines of MJX's optional Warp backend
 
 from envs_mjx.base import (  # noqa: E402
+    ActionRepeatWrapper,
     AutoResetWrapper,
+    ClipActionWrapper,
     EpisodeWrapper,
     PoolResetWrapper,
     RobotEnv,
+    TanhActionWrapper,
     VmapWrapper,
     sanitize_action,
     wrap_for_training,
@@ -55,11 +58,14 @@ def make(name: str, **overrides: Any) -> RobotEnv:
 
 
 __all__ = [
+    "ActionRepeatWrapper",
     "AutoResetWrapper",
+    "ClipActionWrapper",
     "ConfigError",
     "EpisodeWrapper",
     "PoolResetWrapper",
     "RobotEnv",
+    "TanhActionWrapper",
     "VmapWrapper",
     "env_class",
     "make",

@@ -48,6 +48,7 @@ __all__ = [
     "AutoResetWrapper",
     "ClipActionWrapper",
     "TanhActionWrapper",
+    "ActionRepeatWrapper",
     "EpisodeWrapper",
     "PoolResetWrapper",
     "RobotEnv",
@@ -161,6 +162,31 @@ class TanhActionWrapper(_ParamWrapper):
 
     def step(self, state: State, action: jax.Array) -> State:
         return self.env.step(state, jnp.tanh(action))
+
+
+class ActionRepeatWrapper(_ParamWrapper):
+    """Each action held for ``repeat`` steps of the env, their rewards summed (unbatched).
+
+    The agent decides every ``repeat`` env steps (brax's ``action_repeat``); a time limit outside it
+    counts decisions. Once a step ends the episode (``done``), the later steps of the repeat leave the
+    state as it is and add no reward; the metrics are the last step's."""
+
+    def __init__(self, env: Env, repeat: int):
+        super().__init__(env)
+        if int(repeat) < 1:
+            raise ValueError(f"ActionRepeatWrapper: repeat={repeat!r} must be >= 1")
+        self.repeat = int(repeat)
+
+    def step(self, state: State, action: jax.Array) -> State:
+        def one(carry: tuple[State, jax.Array], _: None) -> tuple[tuple[State, jax.Array], None]:
+            s, total = carry
+            ended = s.done > 0
+            ns = jax.tree.map(lambda old, new: jnp.where(ended, old, new), s, self.env.step(s, action))
+            return (ns, total + jnp.where(ended, 0.0, ns.reward)), None
+
+        zero = jnp.zeros_like(state.reward)
+        (nstate, total), _ = jax.lax.scan(one, (state, zero), None, length=self.repeat)
+        return nstate.replace(reward=total)
 
 
 class EpisodeWrapper(_ParamWrapper):

@@ -18,6 +18,9 @@ def test_our_ppo_trains_brax_s_count_of_env_steps_by_hand():
     assert brax_tasks.brax_ppo_steps(BRAX_PPO["inverted_pendulum"], 9 * 163_840) == 9 * 163_840  # exact: unchanged
     # halfcheetah: 512 · 32 · 20 = 327 680 per step; 50 M / (9 · 327 680) = 16.95 → 17
     assert brax_tasks.brax_ppo_steps(BRAX_PPO["halfcheetah"], 50_000_000) == 9 * 17 * 327_680
+    # reacher with the notebook's action_repeat=4: 256 · 32 · 50 · 4 = 1 638 400 env steps per training step
+    reacher = {**BRAX_PPO["reacher"], "action_repeat": 4}
+    assert brax_tasks.brax_ppo_steps(reacher, 5_000_000) == 9 * 1_638_400
 
 
 def _part(tmp_path, name, side, returns, wall, **fields):
@@ -137,6 +140,9 @@ def test_ours_evaluates_along_training_without_changing_it():
     assert np.shape(out["curves"]) == (1, 4) and out["returns"] == [out["curves"][0][-1]]
     assert np.isfinite(out["curves_deterministic"]).all() and np.shape(out["training_curves"]) == (1, 3)
     assert out["overrides"] == given
+    # each decision held for 2 env steps: 640 decisions (one iteration) are brax's 1280 env steps
+    held = brax_tasks.ours(env, "inverted_pendulum", {**row, "action_repeat": 2}, 1280, seeds=1, eval_episodes=4)
+    assert held["curve_steps"] == [0, 1280] and held["env_steps"] == 1280 and np.isfinite(held["returns"]).all()
 
     def whole(key):
         state = trainer.init(key)

@@ -62,7 +62,8 @@ BRAX_COLUMNS = ("num_timesteps", "num_envs", "batch_size", "num_minibatches", "u
 """The columns of :data:`BRAX_PPO`: the arguments of brax's ``ppo.train`` they are."""
 
 # brax's training notebook (github.com/google/brax, notebooks/training.ipynb, `train_fn`). reacher's row
-# there also repeats each action 4 times (action_repeat=4), which these trainers do not; the notebook
+# there also repeats each action 4 times (action_repeat=4), left out here (`python -m benchmarks.brax_tasks
+# --row action_repeat=4` runs both sides so, ours through envs_mjx.ActionRepeatWrapper); the notebook
 # trains hopper with SAC, so its PPO row here is the notebook's ant row (its locomotion PPO setting).
 BRAX_PPO: dict[str, dict[str, float]] = {
     task: dict(zip(BRAX_COLUMNS, row, strict=True))

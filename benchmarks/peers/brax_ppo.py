@@ -142,7 +142,7 @@ def train_published(
         num_evals=10,
         normalize_observations=True,
         deterministic_eval=deterministic_eval,
-        action_repeat=1,
+        action_repeat=int(row.get("action_repeat", 1)),
         discounting=float(row["discounting"]),
         reward_scaling=float(row["reward_scaling"]),
         learning_rate=float(row["learning_rate"]),

@@ -157,6 +157,22 @@ def test_time_limit_restarts_an_env_that_never_writes_done(refresh):
         np.testing.assert_allclose(returns[t][0], returns[t][1], rtol=1e-6)
 
 
+def test_action_repeat_holds_the_action_sums_rewards_and_stops_at_done():
+    env = envs_mjx.ActionRepeatWrapper(Toy(scale=2.0, goal_radius=0.1), 3)
+    state = env.reset(jax.random.PRNGKey(4))
+    x0 = float(state.obs[0])
+    out = env.step(state, jnp.array([-0.05]))  # x moves by 2 · -0.05 = -0.1 three times
+    np.testing.assert_allclose(out.obs[0], x0 - 0.3, rtol=1e-6)
+    np.testing.assert_allclose(out.reward, -((x0 - 0.1) + (x0 - 0.2) + (x0 - 0.3)), rtol=1e-6)
+    assert float(out.done) == 0.0
+    # an action that reaches the goal (|x| < 0.1) on the second step: the third leaves the state and adds nothing
+    a = -(x0 - 0.02) / 2 / 2.0
+    out = env.step(state, jnp.array([a]))
+    np.testing.assert_allclose(out.obs[0], 0.02, atol=1e-6)
+    np.testing.assert_allclose(out.reward, -(x0 - (x0 - 0.02) / 2) - 0.02, rtol=1e-5)
+    assert float(out.done) == 1.0
+
+
 def test_episode_params_survive_auto_reset():
     env = wrap_for_training(Toy(max_steps=1), num_envs=3)
     state = env.reset(jax.random.PRNGKey(2), {"offset": jnp.asarray(10.0)})
