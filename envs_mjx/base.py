@@ -45,14 +45,14 @@ from brax.envs.base import Env, State, Wrapper
 from envs_mjx.config import apply_overrides
 
 __all__ = [
+    "ActionRepeatWrapper",
     "AutoResetWrapper",
     "ClipActionWrapper",
-    "TanhActionWrapper",
-    "ActionRepeatWrapper",
     "EpisodeWrapper",
     "PoolResetWrapper",
     "RobotEnv",
     "State",
+    "TanhActionWrapper",
     "VmapWrapper",
     "map_lanes",
     "sanitize_action",

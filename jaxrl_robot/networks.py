@@ -11,9 +11,10 @@ Networks are plain ``flax.linen`` modules: ``variables = net.init(key, obs)`` an
   fixed hyper-parameter vector σ (the thesis, Table 5.2: σ = [0.8, 0.8, 0.1]) or a learned
   state-independent log-std initialised at ``log σ``, or (``state_std``) a state-dependent
   ``σ(s) = softplus(·) + min_std`` from a second linear head, starting at σ; ``squash=False``
-  leaves the mean linear, for a policy whose sample an env wrapper squashes. With ``batch_norm=True`` the input and
-  every hidden pre-activation are batch-normalised (thesis Fig. 4.2–4.3): batch statistics
-  while training, moving averages for acting and evaluation (SPEC §A11).
+  leaves the mean linear, for a policy whose sample an env wrapper squashes. With
+  ``batch_norm=True`` the input and every hidden pre-activation are batch-normalised (thesis
+  Fig. 4.2–4.3): batch statistics while training, moving averages for acting and evaluation
+  (SPEC §A11).
 * :class:`BatchRenorm` — the actor's default batch-norm layer: batch renormalisation (Ioffe,
   2017). Plain batch-norm trains the policy that normalises each mini-batch by its own
   statistics, but acts and is evaluated with the moving averages; with a few lanes a mini-batch
