@@ -204,15 +204,16 @@ def ours(env: Any, task: str, row: dict[str, float], steps: int, seeds: int, eva
 
 def theirs(env: Any, row: dict[str, float], steps: int, seeds: int, peer: str = "ppo",
            done: Callable[[dict[str, Any]], None] | None = None,
-           mode: str = "stochastic") -> dict[str, Any]:  # fmt: skip
-    """brax's ``ppo.train`` (``peer='sac'``: ``sac.train``) with the task's ``row`` (brax's terms), one seed
-    after another, evaluated in ``mode``; ``done`` is called with the record of the seeds so far after each one."""
+           mode: str = "stochastic", first_seed: int = 0) -> dict[str, Any]:  # fmt: skip
+    """brax's ``ppo.train`` (``peer='sac'``: ``sac.train``) with the task's ``row`` (brax's terms), seeds
+    ``first_seed … first_seed + seeds − 1`` one after another, evaluated in ``mode``; ``done`` is called with
+    the record of the seeds so far after each one."""
     from benchmarks.peers.brax_ppo import train_published
 
     runs = []
-    for seed in range(seeds):
+    for seed in range(first_seed, first_seed + seeds):
         runs.append(train_published(env, row, steps, seed, peer, deterministic_eval=mode == "deterministic"))
-        record = {**summary(runs), "eval_mode": mode}
+        record = {**summary(runs), "eval_mode": mode, "seed_ids": list(range(first_seed, seed + 1))}
         if done is not None:
             done(record)
     return record
@@ -294,6 +295,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                    help=f"PPO: {', '.join(BRAX_PPO)} (default: all); TD3 / DDPG: {', '.join(BRAX_SAC)} (default: all)")
     p.add_argument("--seeds", type=int, default=3)
     p.add_argument("--brax-seeds", type=int, default=0, help="brax's seeds (0: --seeds)")
+    p.add_argument("--brax-first-seed", type=int, default=0,
+                   help="brax's first seed (its seeds split over invocations, e.g. two GPUs, then --merge)")
     p.add_argument("--steps", type=int, default=0, help="env steps per seed (0: brax's budget of the task)")
     p.add_argument("--backend", default="mjx", help="brax physics backend (mjx, generalized, positional, spring)")
     p.add_argument("--eval-episodes", type=int, default=128)
@@ -335,7 +338,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 
     brax_seeds = args.brax_seeds or args.seeds
     prov = provenance.record("benchmarks.brax_tasks", argv, seeds=f"ours: split(PRNGKey(0), {args.seeds}); brax: "
-                             f"seed 0..{brax_seeds - 1}", commit=args.commit)  # fmt: skip
+                             f"seed {args.brax_first_seed}..{args.brax_first_seed + brax_seeds - 1}",
+                             commit=args.commit)  # fmt: skip
     stem = f"{args.out}/{device_label()}-brax_tasks" + ("" if args.algo == "ppo" else f"-{args.algo}")
     result = {"benchmark": "brax_tasks", "algo": args.algo, "provenance": prov, "device": device_label(),
               "backend": args.backend,
@@ -363,7 +367,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                 row["brax"] = record
                 write(stem, result)
 
-            theirs(env, settings, steps, brax_seeds, ALGOS[args.algo][1], partial, args.eval_mode)
+            theirs(env, settings, steps, brax_seeds, ALGOS[args.algo][1], partial, args.eval_mode,
+                   args.brax_first_seed)
             print(task, "brax", [round(r, 1) for r in row["brax"]["returns"]], f"{row['brax']['wall_s']:.0f} s",
                   flush=True)  # fmt: skip
         write(stem, result, echo=task == args.tasks[-1])
@@ -391,6 +396,20 @@ def write(stem: str, result: dict[str, Any], earlier: list[dict[str, Any]] = (),
     return provenance.write(stem, result, to_markdown(shown), earlier=list(earlier), echo=echo)
 
 
+def join_seeds(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
+    """brax's record of two invocations: the seeds of both when they are different seeds of one setting
+    (``seed_ids`` disjoint, same evaluation mode and env steps), else ``b`` (the later file wins). A record
+    without ``seed_ids`` ran seeds 0, 1, … (the only seeds before ``--brax-first-seed``)."""
+    ids_a, ids_b = (r.get("seed_ids") or list(range(len(r["returns"]))) for r in (a, b))
+    same = eval_mode(a, "brax") == eval_mode(b, "brax") and all(a[k] == b[k] for k in ("env_steps", "curve_steps"))
+    if not (ids_a and ids_b and same and not set(ids_a) & set(ids_b)):
+        return b
+    wall, steps = a["wall_s"] + b["wall_s"], len(ids_a) * a["env_steps"] + len(ids_b) * b["env_steps"]
+    return {**b, "returns": a["returns"] + b["returns"], "curves": a["curves"] + b["curves"],
+            "seed_ids": ids_a + ids_b, "wall_s": wall, "wall_per_seed_s": wall / (len(ids_a) + len(ids_b)),
+            "env_steps_per_s": steps / wall}  # fmt: skip
+
+
 def merge(paths: list[str], out: str, argv: list[str] | None = None) -> dict[str, Any]:
     """One report of several results files of one algorithm: per task (in the order first seen), our side
     from the last file that ran ours and brax's from the last that ran brax's; their provenance records
@@ -408,7 +427,8 @@ def merge(paths: list[str], out: str, argv: list[str] | None = None) -> dict[str
         for row in part["tasks"]:
             merged = tasks.setdefault(row["task"], {"task": row["task"], "settings": row["settings"], "sides": []})
             for side in row.get("sides", ("ours", "brax")):
-                merged[side] = row[side]
+                joins = side == "brax" and side in merged
+                merged[side] = join_seeds(merged[side], row[side]) if joins else row[side]
                 merged["sides"] = sorted(set(merged["sides"]) | {side}, reverse=True)
     for part, path in zip(parts, paths, strict=True):
         part["provenance"].setdefault("note", f"merged from {os.path.basename(path)}")
@@ -419,7 +439,8 @@ def merge(paths: list[str], out: str, argv: list[str] | None = None) -> dict[str
     ran_ours = [p for p in parts if any("ours" in r.get("sides", ("ours",)) for r in p["tasks"])]
     first = {**first, "seed_map": (ran_ours or parts)[0]["seed_map"]}
     result = {**first, "tasks": list(tasks.values()), "figures": stem + "-figures", "merged_from": paths,
-              "seeds": max(p["seeds"] for p in parts), "brax_seeds": max(p["brax_seeds"] for p in parts),
+              "seeds": max(p["seeds"] for p in parts), "brax_seeds": max([p["brax_seeds"] for p in parts]
+                                                + [len(t["brax"]["returns"]) for t in tasks.values() if "brax" in t]),
               "provenance": prov, "sources": [p["provenance"] for p in parts]}  # fmt: skip
     write(stem, result, earlier=result["sources"], echo=True)
     return result

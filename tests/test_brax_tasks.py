@@ -83,6 +83,26 @@ def test_returns_are_compared_in_one_evaluation_mode(tmp_path):
     assert "| 900.0 ± 0.0 (mean action) | **950.0 ± 0.0** | 950.0 ± 0.0 | 50 | **10** | 6 | 30 | 1.06 |" in md
 
 
+def test_merge_joins_brax_s_seeds_run_by_different_invocations(tmp_path):
+    """Seed 0 written before seeds were recorded (so seed 0) and seeds 1-2 of another invocation: three seeds,
+    wall per seed over all three; a file that ran seed 1 again replaces the record (the later file wins)."""
+    sampled = dict(eval_mode="stochastic")
+    first = _part(tmp_path, "b0", "brax", [900.0], 50.0)  # no mode recorded: brax's sampled
+    rest = _part(tmp_path, "b12", "brax", [1000.0, 950.0], 20.0, seed_ids=[1, 2], **sampled)
+    result = brax_tasks.main(["--merge", first, rest, "--out", str(tmp_path / "out")])
+    brax = result["tasks"][0]["brax"]
+    assert brax["returns"] == [900.0, 1000.0, 950.0] and brax["seed_ids"] == [0, 1, 2]
+    assert brax["wall_s"] == 90.0 and brax["wall_per_seed_s"] == 30.0 and brax["env_steps_per_s"] == 900 / 90.0
+    assert len(brax["curves"]) == 3 and result["brax_seeds"] == 3
+    assert "| 950.0 ± 40.8 (sampled) |" in (tmp_path / "out" / "gpu-x-brax_tasks.md").read_text()
+    again = _part(tmp_path, "b1", "brax", [800.0], 40.0, seed_ids=[1], **sampled)
+    result = brax_tasks.main(["--merge", rest, again, "--out", str(tmp_path / "out2")])
+    assert result["tasks"][0]["brax"]["returns"] == [800.0]
+    mean_action = _part(tmp_path, "bd", "brax", [700.0], 40.0, seed_ids=[3], eval_mode="deterministic")
+    result = brax_tasks.main(["--merge", rest, mean_action, "--out", str(tmp_path / "out3")])
+    assert result["tasks"][0]["brax"]["returns"] == [700.0]  # another mode: not joined
+
+
 def test_a_killed_brax_run_keeps_the_seeds_it_finished(tmp_path):
     """brax's side is written after each seed: a file with 1 of 3 seeds says so in the table."""
     brax = _part(tmp_path, "brax", "brax", [900.0], 50.0)
