@@ -27,10 +27,13 @@ program called per seed (``--seed-map vmap``: one vmapped program), brax's one a
   deterministic``, of its mean action (``deterministic_eval``); ours: ``--eval-episodes`` fresh episodes
   of the same length (:func:`jaxrl_robot.evaluation.run_test_episodes`) in the same mode
   (``Trainer.sample_policy`` for sampled actions; TD3 and DDPG have only their deterministic policy), and
-  with the mean action beside it. Mean ± std over seeds; the goal compares returns of the same mode.
+  with the mean action beside it (both modes' episodes in one rollout,
+  :func:`jaxrl_robot.evaluation.two_policies`). Mean ± std over seeds; the goal compares returns of the
+  same mode.
 * **wall**: from the call to the trained parameters, compilation included (per seed: the seeds' total
   over their number); brax's includes the 10 evaluations its ``ppo.train`` runs along the way
-  (128 episodes each), ours its evaluations at the same points (:func:`eval_points`); **env steps/s**:
+  (128 episodes each), ours its evaluations at the same points (:func:`eval_points`, twice the episodes:
+  both modes); **env steps/s**:
   env steps of all seeds over that wall time.
 
 Goals: per task our return ≥ brax's and our wall per seed ≤ brax's. Results:
@@ -58,7 +61,7 @@ from envs_mjx.base import ActionRepeatWrapper
 from envs_mjx.config import ConfigError, apply_overrides
 from jaxrl_robot import plots
 from jaxrl_robot.agents import ddpg, ppo
-from jaxrl_robot.evaluation import run_test_episodes
+from jaxrl_robot.evaluation import run_test_episodes, two_policies
 from jaxrl_robot.types import Trainer
 from train.presets import BRAX_PPO, BRAX_SAC, brax_ppo_config, brax_sac_ddpg_config
 from train.td3 import TD3_SETTINGS
@@ -159,11 +162,14 @@ def ours(env: Any, task: str, row: dict[str, float], steps: int, seeds: int, eva
         return jax.lax.fori_loop(0, n, body, (state, buf))
 
     def test(state: Any, key: jax.Array) -> tuple[jax.Array, jax.Array]:
-        mean = run_test_episodes(key, env, trainer.policy(state), eval_episodes, episode_length)["return"]
+        """Mean returns ``(in mode, of the mean action)``: both modes' episodes in one rollout."""
+        mean_action = trainer.policy(state)
         if not sampled:
-            return jnp.mean(mean), jnp.mean(mean)
-        policy = trainer.sample_policy(state, jax.random.fold_in(key, 1))
-        return jnp.mean(run_test_episodes(key, env, policy, eval_episodes, episode_length)["return"]), jnp.mean(mean)
+            r = jnp.mean(run_test_episodes(key, env, mean_action, eval_episodes, episode_length)["return"])
+            return r, r
+        both = two_policies(trainer.sample_policy(state, jax.random.fold_in(key, 1)), mean_action, eval_episodes)
+        r = run_test_episodes(key, env, both, 2 * eval_episodes, episode_length)["return"]
+        return jnp.mean(r[:eval_episodes]), jnp.mean(r[eval_episodes:])
 
     def run(init_fn: Callable, seg_fn: Callable, test_fn: Callable, keys: jax.Array, eval_keys: jax.Array):
         """Train from ``keys`` (one seed, or ``[S]`` with the vmapped functions) with an evaluation at every point."""
@@ -238,7 +244,7 @@ def to_markdown(result: dict[str, Any]) -> str:
            f"{result['eval_episodes']} episodes; brax: 128) in the mode its column names — sampled actions "
            "(brax's default) or the mean action; ours also with the mean action. Wall: compilation included. "
            "Bold: at the goal (our return ≥ brax's in the same mode; our wall per seed ≤ brax's)."
-           + (f" Merged from {len(result['merged_from'])} invocations (`--merge`; each one's provenance below)."
+           + (f" Merged from {len(result['sources'])} invocations (`--merge`; each one's provenance below)."
               if result.get("merged_from") else ""), "",
            "| task | env steps | brax return | our return, same mode | our return, mean action "
            "| brax wall per seed s | our wall per seed s | brax env steps/s | our env steps/s | our / brax return |",
@@ -262,6 +268,8 @@ def to_markdown(result: dict[str, Any]) -> str:
                    f"| {b['env_steps_per_s']:,.0f} | {o['env_steps_per_s']:,.0f} "
                    f"| {ro / rb if rb else float('nan'):.2f} |")  # fmt: skip
     out.append("")
+    if result.get("note"):
+        out += [result["note"], ""]
     for t in result["tasks"]:
         if t["ours"].get("overrides"):
             given = " ".join(f"{k}={v}" for k, v in t["ours"]["overrides"].items())
@@ -318,10 +326,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                    help="our seeds: one program called per seed, or one vmapped program (XLA's CPU compiler "
                    "stops with a floating point exception on the vmapped MJX program, jax 0.10.2)")  # fmt: skip
     p.add_argument("--out", default=RESULTS)
+    p.add_argument("--label", default="", help="appended to the results files' name (e.g. 5M)")
+    p.add_argument("--note", default="", help="a paragraph written under the table (e.g. how to read it)")
     provenance.add_args(p)
     args = p.parse_args(argv)
     if args.merge:
-        return merge(args.merge, args.out, argv)
+        return merge(args.merge, args.out, argv, args.label, args.note)
     if args.no_brax and args.no_ours:
         p.error("--no-brax and --no-ours: nothing would run; give at most one")
     table = ALGOS[args.algo][2]
@@ -340,9 +350,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     prov = provenance.record("benchmarks.brax_tasks", argv, seeds=f"ours: split(PRNGKey(0), {args.seeds}); brax: "
                              f"seed {args.brax_first_seed}..{args.brax_first_seed + brax_seeds - 1}",
                              commit=args.commit)  # fmt: skip
-    stem = f"{args.out}/{device_label()}-brax_tasks" + ("" if args.algo == "ppo" else f"-{args.algo}")
+    stem = stem_of(args.out, device_label(), args.algo, args.label)
     result = {"benchmark": "brax_tasks", "algo": args.algo, "provenance": prov, "device": device_label(),
-              "backend": args.backend,
+              "backend": args.backend, **({"note": args.note} if args.note else {}),
               "seeds": args.seeds, "seed_map": args.seed_map, "brax_seeds": brax_seeds,
               "eval_episodes": args.eval_episodes,
               "figures": stem + "-figures", "tasks": []}  # fmt: skip
@@ -410,10 +420,16 @@ def join_seeds(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
             "env_steps_per_s": steps / wall}  # fmt: skip
 
 
-def merge(paths: list[str], out: str, argv: list[str] | None = None) -> dict[str, Any]:
+def stem_of(out: str, device: str, algo: str, label: str = "") -> str:
+    """``<out>/<device>-brax_tasks[-<algo> unless ppo][-<label>]``: the results files' path without suffix."""
+    return f"{out}/{device}-brax_tasks" + ("" if algo == "ppo" else f"-{algo}") + (f"-{label}" if label else "")
+
+
+def merge(paths: list[str], out: str, argv: list[str] | None = None, label: str = "", note: str = "") -> dict[str, Any]:
     """One report of several results files of one algorithm: per task (in the order first seen), our side
-    from the last file that ran ours and brax's from the last that ran brax's; their provenance records
-    come first in the new file's, then the merge's own."""
+    from the last file that ran ours, brax's joined over files of different seeds (:func:`join_seeds`);
+    their provenance records (a merged file's own sources first) come first in the new file's, then the
+    merge's own. ``note``: a paragraph under the table (a part's note is not carried over)."""
     parts = []
     for path in paths:
         with open(path) as f:
@@ -432,16 +448,17 @@ def merge(paths: list[str], out: str, argv: list[str] | None = None) -> dict[str
                 merged["sides"] = sorted(set(merged["sides"]) | {side}, reverse=True)
     for part, path in zip(parts, paths, strict=True):
         part["provenance"].setdefault("note", f"merged from {os.path.basename(path)}")
-    stem = f"{out}/{first['device']}-brax_tasks" + ("" if first.get("algo", "ppo") == "ppo" else f"-{first['algo']}")
+    stem = stem_of(out, first["device"], first.get("algo", "ppo"), label)
     prov = provenance.record("benchmarks.brax_tasks", argv, device_info=first["provenance"]["device"],
                              seeds="as in the invocations above",
                              note="this file merges the results files of the invocations above")  # fmt: skip
     ran_ours = [p for p in parts if any("ours" in r.get("sides", ("ours",)) for r in p["tasks"])]
-    first = {**first, "seed_map": (ran_ours or parts)[0]["seed_map"]}
+    first = {**{k: v for k, v in first.items() if k != "note"}, "seed_map": (ran_ours or parts)[0]["seed_map"]}
+    sources = [source for p in parts for source in [*p.get("sources", []), p["provenance"]]]
     result = {**first, "tasks": list(tasks.values()), "figures": stem + "-figures", "merged_from": paths,
               "seeds": max(p["seeds"] for p in parts), "brax_seeds": max([p["brax_seeds"] for p in parts]
                                                 + [len(t["brax"]["returns"]) for t in tasks.values() if "brax" in t]),
-              "provenance": prov, "sources": [p["provenance"] for p in parts]}  # fmt: skip
+              "provenance": prov, "sources": sources, **({"note": note} if note else {})}  # fmt: skip
     write(stem, result, earlier=result["sources"], echo=True)
     return result
 

@@ -3,6 +3,8 @@
 * :func:`run_test_episodes` — ``E`` independent episodes (vmapped, one ``lax.scan``) of an
   *unbatched* env with a policy (the mean action, or :func:`sampling_policy`'s draws);
   returns every episode's final metrics.
+* :func:`two_policies` — one batch of episodes, the first ``n`` acting with one policy and the rest
+  with another (both evaluation modes in one rollout).
 * :func:`summarize_episodes` — success rate, mean extra distance (arm7, thesis §4.1.3) and
   mean return.
 * :func:`precision_summary` — success at tighter goal thresholds (5, 2, 1 cm) from the episodes'
@@ -31,6 +33,7 @@ __all__ = [
     "sampling_policy",
     "summarize_episodes",
     "tracking_error_sums",
+    "two_policies",
 ]
 
 PRECISION_THRESHOLDS = (0.05, 0.02, 0.01)
@@ -61,6 +64,29 @@ def sampling_policy(
         return (memory, jnp.broadcast_to(nxt, keys.shape)), to_env(gaussian_sample(sub, mean, log_std))
 
     return RecurrentPolicy((carry, key), step)
+
+
+def two_policies(first: Policy | RecurrentPolicy, second: Policy | RecurrentPolicy, n: int) -> RecurrentPolicy:
+    """A :class:`RecurrentPolicy` of ``2n`` episodes: episodes ``0 … n−1`` act with ``first``, ``n … 2n−1``
+    with ``second``, each half keeping its own policy's memory, so one :func:`run_test_episodes` call of
+    ``2n`` episodes evaluates both (half the sequential env steps of two calls).
+
+    ``obs [2n, D] -> action [2n, A]``; the carry is the pair of both policies' carries over all ``2n``
+    episodes (each policy reads and advances its own half).
+    """
+    a, b = as_recurrent(first), as_recurrent(second)
+    head = lambda tree: jax.tree.map(lambda x: x[:n], tree)  # noqa: E731
+    tail = lambda tree: jax.tree.map(lambda x: x[n:], tree)  # noqa: E731
+
+    def step(carry: tuple[Any, Any], obs: jax.Array) -> tuple[tuple[Any, Any], jax.Array]:
+        ca, cb = carry
+        na, act_a = a.step(head(ca), obs[:n])
+        nb, act_b = b.step(tail(cb), obs[n:])
+        ca = jax.tree.map(lambda new, old: jnp.concatenate([new, old[n:]]), na, ca)
+        cb = jax.tree.map(lambda new, old: jnp.concatenate([old[:n], new]), nb, cb)
+        return (ca, cb), jnp.concatenate([act_a, act_b])
+
+    return RecurrentPolicy((a.carry, b.carry), step)
 
 
 def run_test_episodes(

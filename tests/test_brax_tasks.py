@@ -95,6 +95,11 @@ def test_merge_joins_brax_s_seeds_run_by_different_invocations(tmp_path):
     assert brax["wall_s"] == 90.0 and brax["wall_per_seed_s"] == 30.0 and brax["env_steps_per_s"] == 900 / 90.0
     assert len(brax["curves"]) == 3 and result["brax_seeds"] == 3
     assert "| 950.0 ± 40.8 (sampled) |" in (tmp_path / "out" / "gpu-x-brax_tasks.md").read_text()
+    # a merged file merged again: its invocations' records come along; --label names the file, --note is read
+    brax_tasks.main(["--merge", str(tmp_path / "out" / "gpu-x-brax_tasks.json"), "--out", str(tmp_path / "re"),
+                     "--label", "5M", "--note", "How to read it."])
+    md = (tmp_path / "re" / "gpu-x-brax_tasks-5M.md").read_text()
+    assert "Merged from 3 invocations" in md and "Invocation 4 of 4" in md and "\nHow to read it.\n" in md
     again = _part(tmp_path, "b1", "brax", [800.0], 40.0, seed_ids=[1], **sampled)
     result = brax_tasks.main(["--merge", rest, again, "--out", str(tmp_path / "out2")])
     assert result["tasks"][0]["brax"]["returns"] == [800.0]
@@ -170,7 +175,8 @@ def test_ours_evaluates_along_training_without_changing_it():
 
     state = jax.jit(whole)(jax.random.split(jax.random.PRNGKey(0), 1)[0])
     key = jax.random.split(jax.random.PRNGKey(1), 1)[0]
-    expect = float(np.mean(run_test_episodes(key, env, trainer.policy(state), 4, length)["return"]))
+    # the mean action's episodes are the second half of one batch of 8 (the sampled ones the first)
+    expect = float(np.mean(run_test_episodes(key, env, trainer.policy(state), 8, length)["return"][4:]))
     np.testing.assert_allclose(out["returns_deterministic"][0], expect, rtol=1e-5)
 
 

@@ -9,7 +9,13 @@ import numpy as np
 import pytest
 
 import envs_mjx
-from jaxrl_robot.evaluation import precision_summary, run_test_episodes, sampling_policy, summarize_episodes
+from jaxrl_robot.evaluation import (
+    precision_summary,
+    run_test_episodes,
+    sampling_policy,
+    summarize_episodes,
+    two_policies,
+)
 from train.common import evaluate
 
 
@@ -76,3 +82,18 @@ def test_sampling_policy_draws_from_the_gaussian_per_episode_and_step_and_applie
     np.testing.assert_array_equal(a1[:, 1], -1.0)  # N(-2, 0.1²) clipped by to_env
     # the spread above is across episodes (one draw each); the next step draws afresh, uncorrelated
     assert abs(np.corrcoef(a1[:, 0], a2[:, 0])[0, 1]) < 0.03
+
+
+def test_two_policies_act_on_their_own_halves_with_their_own_memories():
+    """The first 3 episodes act with a counter policy (memory +1 per step, action = memory), the last 3 with
+    a memoryless one (action = −obs): after two steps the halves hold their own actions and memories."""
+    counter = sampling_policy(lambda m, o: (m + 1, (jnp.broadcast_to(m[:, None], o.shape), jnp.full(o.shape, -30.0))),
+                              jnp.zeros(()), jax.random.PRNGKey(0))  # σ = e^-30: the action is the mean
+    both = two_policies(counter, lambda obs: -obs, 3)
+    carry = jax.tree.map(lambda c: jnp.broadcast_to(c, (6,) + jnp.shape(c)), both.carry)
+    obs = jnp.arange(6.0)[:, None]
+    carry, first = both.step(carry, obs)
+    carry, second = both.step(carry, obs)
+    np.testing.assert_allclose(first[:, 0], [0, 0, 0, -3, -4, -5], atol=1e-6)
+    np.testing.assert_allclose(second[:, 0], [1, 1, 1, -3, -4, -5], atol=1e-6)
+    np.testing.assert_array_equal(carry[0][0], [2, 2, 2, 0, 0, 0])  # only the first half's memory advanced
