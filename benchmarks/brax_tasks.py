@@ -152,12 +152,14 @@ def ours(env: Any, task: str, row: dict[str, float], steps: int, seeds: int, eva
     points = eval_points(trainer.num_updates)
 
     def segment(state: Any, buf: jax.Array, start: jax.Array, n: jax.Array) -> tuple[Any, jax.Array]:
-        """``n`` updates from update ``start`` on, each chunk's training-episode return written to ``buf``."""
+        """``n`` updates from update ``start`` on, each chunk's training-episode return (and the acting
+        policy's mean σ, where the trainer reports it) written to ``buf [2, num_updates]``."""
 
         def body(i: jax.Array, carry: tuple[Any, jax.Array]) -> tuple[Any, jax.Array]:
             state, buf = carry
             state, metrics = trainer.update(state)
-            return state, buf.at[start + i].set(metrics["episode_return"])
+            std = metrics.get("policy_std", jnp.full((), jnp.nan))
+            return state, buf.at[:, start + i].set(jnp.stack([metrics["episode_return"], std]).astype(buf.dtype))
 
         return jax.lax.fori_loop(0, n, body, (state, buf))
 
@@ -174,7 +176,7 @@ def ours(env: Any, task: str, row: dict[str, float], steps: int, seeds: int, eva
     def run(init_fn: Callable, seg_fn: Callable, test_fn: Callable, keys: jax.Array, eval_keys: jax.Array):
         """Train from ``keys`` (one seed, or ``[S]`` with the vmapped functions) with an evaluation at every point."""
         state = init_fn(keys)
-        buf = jnp.full(keys.shape[:-1] + (trainer.num_updates,), jnp.nan, jnp.float32)
+        buf = jnp.full(keys.shape[:-1] + (2, trainer.num_updates), jnp.nan, jnp.float32)
         curve, curve_mean, done = [], [], 0
         for p in points:
             if p > done:
@@ -204,7 +206,8 @@ def ours(env: Any, task: str, row: dict[str, float], steps: int, seeds: int, eva
             "env_steps": int(done[-1]), "env_steps_per_s": seeds * done[-1] / wall,
             "curve_kind": "evaluation", "curve_steps": [per_update * p for p in points], "curves": curves.tolist(),
             "curves_deterministic": curves_mean.tolist(),
-            "training_curve_steps": done.tolist(), "training_curves": per_chunk.tolist(),
+            "training_curve_steps": done.tolist(), "training_curves": per_chunk[:, 0].tolist(),
+            "training_policy_std": per_chunk[:, 1].tolist(),
             "overrides": dict(overrides or {})}  # fmt: skip
 
 

@@ -164,6 +164,7 @@ def test_ours_evaluates_along_training_without_changing_it():
     assert out["curve_kind"] == "evaluation" and out["eval_mode"] == "stochastic"
     assert np.shape(out["curves"]) == (1, 4) and out["returns"] == [out["curves"][0][-1]]
     assert np.isfinite(out["curves_deterministic"]).all() and np.shape(out["training_curves"]) == (1, 3)
+    np.testing.assert_allclose(out["training_policy_std"][0][0], 0.7, rtol=1e-5)  # brax's starting σ, first update
     assert out["overrides"] == given
     # each decision held for 2 env steps: 640 decisions (one iteration) are brax's 1280 env steps
     held = brax_tasks.ours(env, "inverted_pendulum", {**row, "action_repeat": 2}, 1280, seeds=1, eval_episodes=4)

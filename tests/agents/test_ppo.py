@@ -178,6 +178,7 @@ def test_update_runs_without_recompiling_and_reports_metrics(toy):
     assert update._cache_size() == 1
     for k in ("actor_loss", "critic_loss", "kl", "kl_beta", "entropy", "episodes", "success", "episode_return"):
         assert k in m2
+    np.testing.assert_allclose(float(m1["policy_std"]), 0.5, rtol=1e-6)  # the first batch acted with σ = sigma
     assert int(state.iteration) == 2
     assert np.isfinite(float(m2["critic_loss"]))
 

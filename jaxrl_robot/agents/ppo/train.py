@@ -341,6 +341,7 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
             "kl_beta": kl_beta,
             "clip_fraction": parallel.pmean(jnp.mean(clip_frac)),
             "entropy": jnp.mean(entropy),
+            "policy_std": parallel.pmean(jnp.mean(jnp.exp(old_log_std))),
             "value": parallel.pmean(jnp.mean(values)),
             "reward": parallel.pmean(jnp.mean(traj.reward)),
         }
