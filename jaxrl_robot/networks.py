@@ -56,6 +56,8 @@ __all__ = [
     "gaussian_log_prob",
     "gaussian_sample",
     "init_running_stats",
+    "tanh_log_det_jacobian",
+    "tanh_gaussian_entropy",
     "normalize",
     "update_running_stats",
 ]
@@ -313,6 +315,21 @@ def gaussian_log_prob(mean: jax.Array, log_std: jax.Array, action: jax.Array) ->
 def gaussian_entropy(log_std: jax.Array) -> jax.Array:
     """Entropy ``H(π(·|s))`` of a diagonal Gaussian: ``[..., A] -> [...]``."""
     return jnp.sum(log_std + 0.5 * (1.0 + _LOG_2PI), axis=-1)
+
+
+def tanh_log_det_jacobian(u: jax.Array) -> jax.Array:
+    """``log |d tanh(u) / du| = log(1 − tanh(u)²) = 2 (log 2 − u − softplus(−2u))`` (the stable form),
+    summed over the last axis: ``[..., A] -> [...]``."""
+    return jnp.sum(2.0 * (math.log(2.0) - u - jax.nn.softplus(-2.0 * u)), axis=-1)
+
+
+def tanh_gaussian_entropy(mean: jax.Array, log_std: jax.Array, noise: jax.Array) -> jax.Array:
+    """One-sample estimate of the entropy of ``tanh(u)``, ``u ~ N(mean, exp(log_std)²)``:
+    ``H(u) + log |d tanh(u)/du|`` at ``u = mean + exp(log_std) · noise`` (``noise ~ N(0, 1)``, reparametrised,
+    so the estimate's gradient reaches mean and σ; brax's ``NormalTanhDistribution.entropy``). Unlike the
+    Gaussian's, it falls as the mean moves into tanh's flat tails. ``[..., A] x 3 -> [...]``."""
+    chex.assert_equal_shape((mean, log_std, noise))
+    return gaussian_entropy(log_std) + tanh_log_det_jacobian(mean + jnp.exp(log_std) * noise)
 
 
 def gaussian_kl(mean_p: jax.Array, log_std_p: jax.Array, mean_q: jax.Array, log_std_q: jax.Array) -> jax.Array:

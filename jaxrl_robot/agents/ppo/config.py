@@ -54,7 +54,8 @@ class PPOConfig(ActorCriticConfig):
     tanh_actions: bool = False
     """Squash the actions the env receives with ``tanh`` (the Gaussian's mean is then linear and the
     deterministic action is tanh(mean)): brax's and SAC's squashed Gaussian. Log-probabilities are
-    taken of the unsquashed sample, whose probability ratio the squash leaves unchanged."""
+    taken of the unsquashed sample, whose probability ratio the squash leaves unchanged; the entropy
+    bonus is the squashed action's (as brax's), which falls as the mean saturates."""
     normalize_obs: bool = False
     """Normalise observations by running mean and variance (actor and critic inputs)."""
     reset_refresh: float = 0.125

@@ -13,7 +13,14 @@ import jax
 import jax.numpy as jnp
 
 from jaxrl_robot.agents.ppo.config import PPOConfig
-from jaxrl_robot.networks import GaussianActor, apply_actor, gaussian_entropy, gaussian_kl, gaussian_log_prob
+from jaxrl_robot.networks import (
+    GaussianActor,
+    apply_actor,
+    gaussian_entropy,
+    gaussian_kl,
+    gaussian_log_prob,
+    tanh_gaussian_entropy,
+)
 
 __all__ = [
     "LOG_RATIO_LIMIT",
@@ -117,7 +124,9 @@ def make_actor_loss(config: PPOConfig, actor: GaussianActor, forward: Callable |
     ``obs`` and returns ``[B, A]`` outputs, ``B`` the steps of all sequences. The ratio
     ``r = π_θ(a|s) / π_old(a|s)`` enters the clipped objective (Eq. 5.5) or the KL-penalty
     objective (Eq. 5.3) with ``kl = KL(π_old ‖ π_θ)``, mean over the mini-batch; minus
-    ``entropy_coef`` times the mean entropy.
+    ``entropy_coef`` times the mean entropy: the Gaussian's, or with ``tanh_actions`` that of the squashed
+    action (:func:`~jaxrl_robot.networks.tanh_gaussian_entropy` at the noise that drew each stored action,
+    ``(action − old_mean) / old_σ``), which keeps the mean out of tanh's flat tails.
     """
 
     if forward is None:
@@ -131,7 +140,11 @@ def make_actor_loss(config: PPOConfig, actor: GaussianActor, forward: Callable |
         log_prob = gaussian_log_prob(mean, log_std, action)
         old_log_prob = gaussian_log_prob(old_mean, old_log_std, action)
         kl = gaussian_kl(old_mean, old_log_std, mean, log_std)
-        entropy = jnp.mean(gaussian_entropy(log_std))
+        if config.tanh_actions:
+            noise = jax.lax.stop_gradient((action - old_mean) * jnp.exp(-old_log_std))
+            entropy = jnp.mean(tanh_gaussian_entropy(mean, log_std, noise))
+        else:
+            entropy = jnp.mean(gaussian_entropy(log_std))
         if config.objective == "clip":
             loss, clip_frac = clipped_surrogate_loss(log_prob, old_log_prob, adv, config.clip_eps)
         else:
