@@ -56,9 +56,9 @@ __all__ = [
     "gaussian_log_prob",
     "gaussian_sample",
     "init_running_stats",
-    "tanh_log_det_jacobian",
-    "tanh_gaussian_entropy",
     "normalize",
+    "tanh_gaussian_entropy",
+    "tanh_log_det_jacobian",
     "update_running_stats",
 ]
 

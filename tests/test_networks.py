@@ -261,6 +261,7 @@ def test_tanh_gaussian_entropy_averages_to_the_squashed_entropy_and_falls_in_the
         mean, log_std = jnp.full((200_000, 1), mu), jnp.full((200_000, 1), math.log(sigma))
         estimate = float(jnp.mean(tanh_gaussian_entropy(mean, log_std, noise)))
         np.testing.assert_allclose(estimate, by_quadrature(mu, sigma), atol=5e-3)
+
     def entropy_at(m):  # σ = e^-1
         return jnp.mean(tanh_gaussian_entropy(jnp.full((1000, 1), m), jnp.full((1000, 1), -1.0), noise[:1000]))
 
