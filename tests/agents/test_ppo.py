@@ -288,3 +288,24 @@ def test_first_actor_step_ratio_is_one_against_the_acting_batch_norm_policy():
     clip_batch, kl_batch = _first_step_clip_fraction_and_kl("batch")
     assert clip_renorm == 0.0 and kl_renorm < 1e-6, (clip_renorm, kl_renorm)
     assert clip_batch > 0.1 and kl_batch > 0.1, (clip_batch, kl_batch)
+
+
+def test_tanh_actions_entropy_bonus_is_the_squashed_action_s_at_the_stored_noise():
+    """With ``tanh_actions`` the loss's entropy is H(u) + Σ log(1 − tanh²(u)) at u = mean_θ + σ_θ ε, ε the noise
+    that drew each stored action from π_old (by hand with numpy); without it, the Gaussian's H(u) alone."""
+    mean, log_std = jnp.array([[0.2, -1.5], [2.0, 0.0]]), jnp.log(jnp.array([[0.5, 0.3], [0.4, 1.0]]))
+    old_mean, old_log_std = mean + 0.1, log_std - 0.2
+    eps = np.array([[0.3, -1.2], [0.8, 0.5]])
+    action = old_mean + jnp.exp(old_log_std) * eps
+    mb = (jnp.zeros((2, 3)), action, jnp.ones(2), old_mean, old_log_std)
+
+    def forward(params, stats, obs):  # π_θ's outputs given directly
+        return (mean, log_std), stats
+
+    gaussian = np.sum(np.asarray(log_std) + 0.5 * (1.0 + math.log(2 * math.pi)), -1)
+    u = np.asarray(mean) + np.exp(np.asarray(log_std)) * eps
+    squashed = gaussian + np.sum(np.log1p(-np.tanh(u) ** 2), -1)
+    for tanh, expect in ((True, squashed), (False, gaussian)):
+        config = PPOConfig(tanh_actions=tanh, learn_std=True)
+        _, (_, _, entropy, _) = make_actor_loss(config, None, forward)({}, {}, mb, jnp.asarray(1.0))
+        np.testing.assert_allclose(float(entropy), np.mean(expect), rtol=1e-5)
