@@ -115,3 +115,17 @@ def test_arm7_precise_budget_follows_reward_and_relabelling(cli):
     assert epochs("--env", "arm7_precise", "--reward", "shaped", "--her", "random", "--epochs", "5") == 5
     thesis = cli.parse(["--env", "arm7_precise", "--preset", "thesis", "--her", "random"])
     assert getattr(thesis, cli.CLI.name).epochs == 400  # the env's default reward (path): 200, twice
+
+
+@pytest.mark.parametrize("cli", [ddpg_cli, td3_cli])
+def test_arm7_precise_normalises_observations(cli):
+    """Every preset normalises the networks' observations on arm7_precise and on no other env;
+    --no-normalize-obs still wins."""
+
+    def normalise(*argv):
+        return getattr(cli.parse(list(argv)), cli.CLI.name).normalize_obs
+
+    for preset in ("thesis", "cpu", "fast"):
+        assert normalise("--env", "arm7_precise", "--preset", preset, "--her", "random")
+        assert not normalise("--env", "arm7", "--preset", preset, "--her", "random")
+    assert not normalise("--env", "arm7_precise", "--preset", "fast", "--no-normalize-obs")
