@@ -125,3 +125,15 @@ def test_precise_variant_rows_by_hand(tmp_path):
     (line,) = [x for x in lines if x.startswith("| Distributed PPO")]
     cells = line.split(" | ")
     assert cells[2:6] == ["**96.0 ± 1.0**", "89.0 ± 3.0", "97 / 92; 95 / 86 (2/2)", "no"] and cells[6] == "99.5"
+
+
+def test_runs_wall_counts_a_run_of_several_seeds_once():
+    """Seeds run apart add their walls; the seeds of one ``--seeds`` run (``<run>/seed<k>/``, each
+    ``eval.json`` with the whole run's wall) count that wall once; a failed seed without a folder counts
+    its process time."""
+    apart = [{"run_dir": f"/r/3.1/x/seed{k}/ddpg-arm7-1", "wall_s": w} for k, w in enumerate((10.0, 12.0))]
+    together = [{"run_dir": f"/r/3.1/y/seeds0-1-2/ddpg-arm7-2/seed{k}", "wall_s": 30.0} for k in range(3)]
+    failed = [{"error": "exit code 1", "run_dir": None, "wall_s": 4.0}, {"error": "exit code 1", "wall_s": 5.0}]
+    assert thesis.runs_wall(apart) == 22.0
+    assert thesis.runs_wall(together) == 30.0
+    assert thesis.runs_wall(together + apart + failed) == 61.0
