@@ -38,6 +38,10 @@ Seeds run one after another in this process (each a command-line run), or with `
 which take most of a short row's time, then overlap.  ``--together`` runs a row's seeds as one run
 (the command line's ``--seeds N``: one program vmapped over the seeds on a GPU, one compiled program
 looped over them on the CPU), its seeds in ``<runs>/<table>/<row>/seeds0-1-2/<run>/seed<k>/``.
+``--parallel N`` runs up to ``N`` rows at once, each its seeds as one run (as ``--together``) in a process
+of its own (output in ``<runs>/<table>/<row>/seeds0-1-2.log``; each process gets 1/N of the device's
+memory), so that one row's compilation and small kernels overlap another's; ``--gpus 0 1 …`` spreads
+those processes over GPUs, one GPU each.
 """
 
 from __future__ import annotations
@@ -50,12 +54,14 @@ import importlib
 import io
 import json
 import os
+import queue
 import re
 import shutil
 import subprocess
 import sys
 import time
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from typing import Any
 
 import numpy as np
@@ -286,23 +292,74 @@ def run_seeds_apart(row: Row, seeds: Sequence[int], args: argparse.Namespace) ->
     return [results[s] for s in seeds]
 
 
-def run_seeds_together(row: Row, seeds: Sequence[int], args: argparse.Namespace) -> list[dict[str, Any]]:
-    """Run (or continue, or skip) the ``seeds`` of ``row`` as one run, ``--seeds N`` of the algorithm's
-    command line (one program vmapped over the seeds on a GPU, the same compiled program once per seed
-    on the CPU; ``train.common.SeedProgram``); the same records as :func:`run_seed`, in the order of
-    ``seeds``, each with its ``run_dir`` the seed's folder ``<run>/seed<k>/``."""
+def together_start(
+    row: Row, seeds: Sequence[int], args: argparse.Namespace
+) -> tuple[list[dict] | None, list[str], str]:
+    """How the ``seeds`` of ``row`` start as one run: ``(records, argv, out)`` — the records of a finished
+    run (skipped) or None, the command line that starts it (or continues a killed run) and its parent
+    folder ``<runs>/<table>/<row>/seeds<0-1-…>``."""
     out = os.path.join(args.runs, row.table, row.name, "seeds" + "-".join(map(str, seeds)))
     run = latest_run(out)
-    evals = [os.path.join(run, f"seed{k}", "eval.json") for k in seeds] if run else []
+    evals = [os.path.join(seed_folder(run, seeds, k), "eval.json") for k in seeds] if run else []
     if run and all(os.path.exists(e) for e in evals):
-        return [{**json.load(open(e)), "run_dir": os.path.dirname(e), "skipped": True} for e in evals]
+        return [{**json.load(open(e)), "run_dir": os.path.dirname(e), "skipped": True} for e in evals], [], out
     if run:
-        argv = ["--resume", run]
-    else:
-        argv = [*command(row, args.preset, seeds[0], args.smoke), "--seeds", str(len(seeds)), "--out", out]
-    code, wall = run_in_process(row, argv, args.quiet)
+        return None, ["--resume", run], out
+    return None, [*command(row, args.preset, seeds[0], args.smoke), "--seeds", str(len(seeds)), "--out", out], out
+
+
+def together_records(out: str, seeds: Sequence[int], code: Any, wall: float, where: str = "") -> list[dict]:
+    """The records of the seeds of the run under ``out`` that ended with exit ``code``."""
     run = latest_run(out)
-    return [run_record(os.path.join(run, f"seed{k}") if run else None, code, wall) for k in seeds]
+    return [run_record(seed_folder(run, seeds, k) if run else None, code, wall, where) for k in seeds]
+
+
+def seed_folder(run: str, seeds: Sequence[int], seed: int) -> str:
+    """Where seed ``seed`` of a run of ``seeds`` writes: ``<run>/seed<k>/``, or the run itself for one seed."""
+    return os.path.join(run, f"seed{seed}") if len(seeds) > 1 else run
+
+
+def run_seeds_together(row: Row, seeds: Sequence[int], args: argparse.Namespace) -> list[dict[str, Any]]:
+    """Run (or continue, or skip) the ``seeds`` of ``row`` as one run in this process, ``--seeds N`` of the
+    algorithm's command line (one program vmapped over the seeds on a GPU, the same compiled program once
+    per seed on the CPU; ``train.common.SeedProgram``); the same records as :func:`run_seed`, in the order
+    of ``seeds``, each with its ``run_dir`` the seed's folder ``<run>/seed<k>/``."""
+    done, argv, out = together_start(row, seeds, args)
+    if done is not None:
+        return done
+    code, wall = run_in_process(row, argv, args.quiet)
+    return together_records(out, seeds, code, wall)
+
+
+def row_process_env(slot: int, args: argparse.Namespace) -> dict[str, str]:
+    """The environment of the row process in ``slot`` (0 … ``--parallel`` − 1): pinned to GPU
+    ``gpus[slot % len(gpus)]`` with ``--gpus``, and given its share of that device's memory (1/k of 90 %
+    for the k slots that share it)."""
+    env = dict(os.environ)
+    sharing = args.parallel
+    if args.gpus:
+        env["CUDA_VISIBLE_DEVICES"] = str(args.gpus[slot % len(args.gpus)])
+        sharing = len(range(slot % len(args.gpus), args.parallel, len(args.gpus)))
+    env["XLA_PYTHON_CLIENT_MEM_FRACTION"] = f"{0.9 / sharing:.3f}"
+    return env
+
+
+def run_row_process(row: Row, seeds: Sequence[int], args: argparse.Namespace, slots: queue.Queue) -> list[dict]:
+    """Run (or continue, or skip) the ``seeds`` of ``row`` as one run (as :func:`run_seeds_together`) in a
+    process of its own, in a free slot of ``slots`` (output in ``<out>.log``)."""
+    done, argv, out = together_start(row, seeds, args)
+    if done is not None:
+        return done
+    slot = slots.get()
+    try:
+        os.makedirs(out, exist_ok=True)
+        t0 = time.perf_counter()
+        with open(out + ".log", "w") as log:
+            code = subprocess.run([sys.executable, "-m", f"train.{row.algo}", *argv], stdout=log,
+                                  stderr=subprocess.STDOUT, env=row_process_env(slot, args)).returncode  # fmt: skip
+        return together_records(out, seeds, code, time.perf_counter() - t0, f" (log: {out}.log)")
+    finally:
+        slots.put(slot)
 
 
 def axis_keys(ev: dict) -> tuple[str, str, str]:
@@ -488,6 +545,7 @@ def report(results: list[dict], meta: dict[str, Any], stem: str) -> str:
         f"`{meta['command']}` at commit {meta['commit']} (jax {meta['jax']}, {meta['date']}); {meta['seeds']} "
         "seed(s) per row, "
         + ("a row's seeds one command-line run (`--seeds`)" if meta.get("together") else "each one command-line run")
+        + (f", {meta['parallel']} rows at once" if meta.get("parallel", 1) > 1 else "")
         + f"; the rows' runs took {meta['runs_wall_s']:.0f} s in all "
         f"(this invocation {meta['wall_s']:.0f} s)"
         + (" (smoke budgets: not results)" if meta["smoke"] else "") + ". Bold: at the goal (arm ≥ 95 % per row"
@@ -520,7 +578,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     from train.presets import resolve_preset
 
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--tables", nargs="+", default=None, choices=TABLES, help="default: every table")
+    p.add_argument("--tables", nargs="+", default=None, choices=TABLES,
+                   help="default: every table; rows run in this order (the report keeps the thesis's)")
     p.add_argument("--rows", nargs="+", default=None, help="only these rows (table/name or name; see --list)")
     p.add_argument("--seeds", type=int, default=3)
     p.add_argument("--preset", default="auto", choices=["auto", "thesis", "cpu", "fast"])
@@ -537,6 +596,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--together", action="store_true",
                    help="a row's seeds as one run (--seeds N of its command line: vmapped on a GPU, one compiled "
                    "program looped over the seeds on the CPU)")  # fmt: skip
+    p.add_argument("--parallel", type=int, default=1,
+                   help="rows run at once, each its seeds as one run (as --together) in a process of its own "
+                   "(default 1: one row after another)")  # fmt: skip
+    p.add_argument("--gpus", type=int, nargs="+", default=None,
+                   help="with --parallel: GPU indices the row processes are spread over, one GPU each (default: "
+                   "every process sees every visible device)")  # fmt: skip
     p.add_argument("--list", action="store_true", help="print the rows and their commands, run nothing")
     p.add_argument("--commit", default="", help="commit to record (default: git's HEAD)")
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -547,6 +612,15 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     rows = select(args.tables, args.rows, args.variant)
     if not rows:
         raise SystemExit(f"error: --rows {args.rows} matches no row of tables {args.tables or 'all'}; see --list")
+    if args.parallel < 1:
+        raise SystemExit(f"error: --parallel {args.parallel} is out of range; allowed >= 1")
+    if args.parallel > 1 and args.jobs > 1:
+        raise SystemExit("error: --parallel and --jobs exclude each other; --parallel runs each row's seeds as one run")
+    if args.gpus and args.parallel == 1:
+        raise SystemExit("error: --gpus needs --parallel > 1")
+    if args.parallel > 1 or args.jobs > 1:  # the runs are other processes: this one keeps the device's memory free
+        os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
+    args.together = args.together or args.parallel > 1
     console = Console(stderr=True)
     if args.list:
         for r in rows:
@@ -557,7 +631,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     prov = provenance.record("benchmarks.thesis", argv, seeds=list(range(args.seeds)), commit=args.commit,
                              run_directories=f"{args.runs}; each seed's eval.json and config.json kept under runs/")
     meta = {"device": device_label(), "preset": args.preset, "variant": args.variant, "seeds": args.seeds,
-            "smoke": args.smoke, "together": args.together,
+            "smoke": args.smoke, "together": args.together, "parallel": args.parallel,
             "command": "python -m benchmarks.thesis " + " ".join(argv), "jax": jax.__version__,
             "commit": prov["commit"][:12],
             "date": time.strftime("%Y-%m-%d %H:%M"), "provenance": prov}  # fmt: skip
@@ -566,10 +640,38 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         raise SystemExit(f"error: --jobs {args.jobs} is out of range; allowed >= 1")
     seeds = list(range(args.seeds))
     size = len(seeds) if args.together else args.jobs
-    jobs = [(r, seeds[i : i + size]) for r in rows if r.algo for i in range(0, len(seeds), size)]
+    order = {t: k for k, t in enumerate(args.tables or [])}  # rows run in the order of --tables (the report keeps
+    runnable = sorted((r for r in rows if r.algo), key=lambda r: order.get(r.table, 0))  # the thesis's order)
+    jobs = [(r, seeds[i : i + size]) for r in runnable for i in range(0, len(seeds), size)]
     t_start, ran, spent = time.perf_counter(), 0, 0.0
     by_row: dict[str, list[dict]] = {r.id: [] for r in rows}
-    for i, (row, group) in enumerate(jobs):
+
+    def finished(i: int, row: Row, group: list[int], got_all: list[dict]) -> None:
+        """Keep a finished job's records and runs; the report so far once its row is done."""
+        for seed, got in zip(group, got_all, strict=True):
+            if "error" in got:
+                console.print(f"  [red]{row.id} seed {seed}: {got['error']}[/red]")
+            by_row[row.id].append(got)
+            if got.get("run_dir") and not args.smoke:
+                provenance.keep_run(got["run_dir"], stem, os.path.relpath(got["run_dir"], args.runs))
+        if len(by_row[row.id]) == args.seeds and i + 1 < len(jobs):
+            report(collect(rows, by_row, args, meta, t_start), meta, stem)
+
+    if args.parallel > 1:
+        slots: queue.Queue = queue.Queue()
+        for k in range(args.parallel):
+            slots.put(k)
+        console.print(f"{len(jobs)} rows, {args.parallel} at once" + (f" over GPUs {args.gpus}" if args.gpus else ""))
+        with ThreadPoolExecutor(args.parallel) as pool:
+            futures = {pool.submit(run_row_process, row, group, args, slots): (row, group) for row, group in jobs}
+            for i, future in enumerate(as_completed(futures)):
+                row, group = futures[future]
+                got_all = future.result()
+                took = time.perf_counter() - t_start
+                console.print(f"[bold][{i + 1}/{len(jobs)}][/bold] {row.id} done — {row.label} "
+                              f"({took / 60:.1f} min in)")  # fmt: skip
+                finished(i, row, group, got_all)
+    for i, (row, group) in enumerate(jobs if args.parallel == 1 else []):
         eta = f", ETA {spent / ran * (len(jobs) - i) / 60:.0f} min" if ran else ""
         which = f"seed {group[0]}" if len(group) == 1 else f"seeds {group[0]}-{group[-1]}"
         console.print(f"[bold][{i + 1}/{len(jobs)}][/bold] {row.id} {which} — {row.label}{eta}")
@@ -580,14 +682,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             got_all = run_seeds_apart(row, group, args) if args.jobs > 1 else [run_seed(row, group[0], args)]
         if not all(got.get("skipped") for got in got_all):
             ran, spent = ran + 1, spent + time.perf_counter() - t0
-        for seed, got in zip(group, got_all, strict=True):
-            if "error" in got:
-                console.print(f"  [red]{row.id} seed {seed}: {got['error']}[/red]")
-            by_row[row.id].append(got)
-            if got.get("run_dir") and not args.smoke:
-                provenance.keep_run(got["run_dir"], stem, os.path.relpath(got["run_dir"], args.runs))
-        if len(by_row[row.id]) == args.seeds and i + 1 < len(jobs):  # a row done: the report so far
-            report(collect(rows, by_row, args, meta, t_start), meta, stem)
+        finished(i, row, group, got_all)
     results = collect(rows, by_row, args, meta, t_start)
     report(results, meta, stem)
     console.print(f"report: {stem}.md")

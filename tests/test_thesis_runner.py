@@ -9,6 +9,8 @@ import glob
 import json
 import os
 
+import pytest
+
 from benchmarks import thesis
 
 
@@ -64,6 +66,22 @@ def test_table_3_1_smoke_report_resume_and_missing_rows(tmp_path, monkeypatch):
     assert {k: both[0][k] for k in numbers} == {k: here[k] for k in numbers}
     assert both[0]["closest_distance_median"] != both[1]["closest_distance_median"]  # two seeds, not one twice
     assert all(s.get("skipped") for s in thesis.main(together)["rows"][0]["seeds"])
+
+    # --parallel: two rows at once, each in a process of its own; a row evaluates as it does in this process,
+    # and a rerun skips both
+    par_runs = str(tmp_path / "parallel")
+    par = [*argv[:-4], "--runs", par_runs, "--out", out, "--rows", "3.1/sparse-future2", "3.1/sparse-final",
+           "--parallel", "2"]  # fmt: skip
+    got = {r["row"]["name"]: r["seeds"][0] for r in thesis.main(par)["rows"]}
+    assert {k: got["sparse-future2"][k] for k in numbers} == {k: here[k] for k in numbers}
+    assert "error" not in got["sparse-final"] and got["sparse-final"]["finished"] is True
+    assert os.path.exists(os.path.join(par_runs, "3.1", "sparse-final", "seeds0.log"))
+    assert all(r["seeds"][0].get("skipped") for r in thesis.main(par)["rows"])
+    for bad, message in ((["--parallel", "0"], "--parallel 0 is out of range"),
+                         (["--parallel", "2", "--jobs", "2"], "exclude each other"),
+                         (["--gpus", "0"], "--gpus needs --parallel")):  # fmt: skip
+        with pytest.raises(SystemExit, match=message):
+            thesis.main([*argv, *bad])
 
     # a row whose algorithm does not exist is reported as missing, never run
     absent = thesis.Row("3.1", "absent", "an algorithm not built", None, (), 50, "arm", missing="not built")
@@ -137,3 +155,17 @@ def test_runs_wall_counts_a_run_of_several_seeds_once():
     assert thesis.runs_wall(apart) == 22.0
     assert thesis.runs_wall(together) == 30.0
     assert thesis.runs_wall(together + apart + failed) == 61.0
+
+
+def test_row_processes_share_gpus_round_robin():
+    """--parallel 5 over --gpus 0 1: slots 0, 2, 4 on GPU 0 (a third of its memory each), 1 and 3 on GPU 1
+    (half each); without --gpus every slot sees every device with 1/5 of the memory."""
+    import argparse
+
+    args = argparse.Namespace(parallel=5, gpus=[0, 1])
+    envs = [thesis.row_process_env(slot, args) for slot in range(5)]
+    assert [e["CUDA_VISIBLE_DEVICES"] for e in envs] == ["0", "1", "0", "1", "0"]
+    assert [e["XLA_PYTHON_CLIENT_MEM_FRACTION"] for e in envs] == ["0.300", "0.450", "0.300", "0.450", "0.300"]
+    plain = thesis.row_process_env(3, argparse.Namespace(parallel=5, gpus=None))
+    assert plain["XLA_PYTHON_CLIENT_MEM_FRACTION"] == "0.180"
+    assert plain.get("CUDA_VISIBLE_DEVICES") == os.environ.get("CUDA_VISIBLE_DEVICES")
