@@ -472,9 +472,9 @@ def table_markdown(table: str, results: list[dict], fig_dir: str, rel: str) -> l
                          f"| {fig['precision'][0]:.1f} | {fig['wall_s']:.0f} | {cmd} |")  # fmt: skip
         elif kind == "arm":
             cell = _cell(fig["mean"][0], fig["std"][0], fig["met"][0], 1)
-            precise = " / ".join(f"{v:.1f}" for v in fig.get("precision", ())) or "—"
+            at = " / ".join(f"{v:.1f}" for v in fig.get("precision", ())) or "—"
             lines.append(f"| {row['label']} | {row['thesis']} | {cell} | {seeds} | {'yes' if fig['met'][0] else 'no'} "
-                         f"| {precise} | {fig['wall_s']:.0f} | {cmd} |")  # fmt: skip
+                         f"| {at} | {fig['wall_s']:.0f} | {cmd} |")  # fmt: skip
         else:
             cells = " | ".join(_cell(m, s, ok, 2) for m, s, ok in zip(fig["mean"], fig["std"], fig["met"], strict=True))
             goal = " / ".join(f"{g:.2f}" for g in fig["goal"])

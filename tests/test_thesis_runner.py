@@ -169,3 +169,22 @@ def test_row_processes_share_gpus_round_robin():
     plain = thesis.row_process_env(3, argparse.Namespace(parallel=5, gpus=None))
     assert plain["XLA_PYTHON_CLIENT_MEM_FRACTION"] == "0.180"
     assert plain.get("CUDA_VISIBLE_DEVICES") == os.environ.get("CUDA_VISIBLE_DEVICES")
+
+
+def test_every_arm_row_of_a_table_has_the_same_columns(tmp_path):
+    """The 5 cm arm table: every row (not only the first) gives mean ± std, the seeds, met, and success at
+    2 cm / 1 cm, in the header's eight columns."""
+    rows = thesis.select(["5.1"], None)
+
+    def seed(at5, at2, at1, k):
+        return {"success_rate": at5, "success_5cm": at5, "success_2cm": at2, "success_1cm": at1, "wall_s": 5.0,
+                "run_dir": str(tmp_path / f"seed{k}")}  # fmt: skip
+
+    results = []
+    for row, (at5, at2, at1) in zip(rows, ((0.98, 0.25, 0.02), (0.99, 0.54, 0.10)), strict=True):
+        seeds = [seed(at5, at2, at1, k) for k in range(2)]
+        results.append({"row": dataclasses.asdict(row), "command": list(row.argv), "seeds": seeds,
+                        "figure": thesis.row_figure(row, seeds)})  # fmt: skip
+    lines = [x for x in thesis.table_markdown("5.1", results, str(tmp_path), "figs") if x.startswith("| Distributed")]
+    assert [x.split(" | ")[2:6] for x in lines] == [["**98.0 ± 0.0**", "98; 98 (2/2)", "yes", "25.0 / 2.0"],
+                                                    ["**99.0 ± 0.0**", "99; 99 (2/2)", "yes", "54.0 / 10.0"]]
