@@ -667,9 +667,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             for i, future in enumerate(as_completed(futures)):
                 row, group = futures[future]
                 got_all = future.result()
-                took = time.perf_counter() - t_start
+                took, left = time.perf_counter() - t_start, len(jobs) - i - 1
+                eta = f", ETA {took / (i + 1) * left / 60:.0f} min" if left else ""
                 console.print(f"[bold][{i + 1}/{len(jobs)}][/bold] {row.id} done — {row.label} "
-                              f"({took / 60:.1f} min in)")  # fmt: skip
+                              f"({took / 60:.1f} min in{eta})")  # fmt: skip
                 finished(i, row, group, got_all)
     for i, (row, group) in enumerate(jobs if args.parallel == 1 else []):
         eta = f", ETA {spent / ran * (len(jobs) - i) / 60:.0f} min" if ran else ""
