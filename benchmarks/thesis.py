@@ -640,8 +640,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         raise SystemExit(f"error: --jobs {args.jobs} is out of range; allowed >= 1")
     seeds = list(range(args.seeds))
     size = len(seeds) if args.together else args.jobs
-    order = {t: k for k, t in enumerate(args.tables or [])}  # rows run in the order of --tables (the report keeps
-    runnable = sorted((r for r in rows if r.algo), key=lambda r: order.get(r.table, 0))  # the thesis's order)
+    # rows run in the order of --tables; the report keeps the thesis's order
+    order = {t: k for k, t in enumerate(args.tables or [])}
+    runnable = sorted((r for r in rows if r.algo), key=lambda r: order.get(r.table, 0))
     jobs = [(r, seeds[i : i + size]) for r in runnable for i in range(0, len(seeds), size)]
     t_start, ran, spent = time.perf_counter(), 0, 0.0
     by_row: dict[str, list[dict]] = {r.id: [] for r in rows}
@@ -672,18 +673,19 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                 console.print(f"[bold][{i + 1}/{len(jobs)}][/bold] {row.id} done — {row.label} "
                               f"({took / 60:.1f} min in{eta})")  # fmt: skip
                 finished(i, row, group, got_all)
-    for i, (row, group) in enumerate(jobs if args.parallel == 1 else []):
-        eta = f", ETA {spent / ran * (len(jobs) - i) / 60:.0f} min" if ran else ""
-        which = f"seed {group[0]}" if len(group) == 1 else f"seeds {group[0]}-{group[-1]}"
-        console.print(f"[bold][{i + 1}/{len(jobs)}][/bold] {row.id} {which} — {row.label}{eta}")
-        t0 = time.perf_counter()
-        if args.together:
-            got_all = run_seeds_together(row, group, args)
-        else:
-            got_all = run_seeds_apart(row, group, args) if args.jobs > 1 else [run_seed(row, group[0], args)]
-        if not all(got.get("skipped") for got in got_all):
-            ran, spent = ran + 1, spent + time.perf_counter() - t0
-        finished(i, row, group, got_all)
+    else:
+        for i, (row, group) in enumerate(jobs):
+            eta = f", ETA {spent / ran * (len(jobs) - i) / 60:.0f} min" if ran else ""
+            which = f"seed {group[0]}" if len(group) == 1 else f"seeds {group[0]}-{group[-1]}"
+            console.print(f"[bold][{i + 1}/{len(jobs)}][/bold] {row.id} {which} — {row.label}{eta}")
+            t0 = time.perf_counter()
+            if args.together:
+                got_all = run_seeds_together(row, group, args)
+            else:
+                got_all = run_seeds_apart(row, group, args) if args.jobs > 1 else [run_seed(row, group[0], args)]
+            if not all(got.get("skipped") for got in got_all):
+                ran, spent = ran + 1, spent + time.perf_counter() - t0
+            finished(i, row, group, got_all)
     results = collect(rows, by_row, args, meta, t_start)
     report(results, meta, stem)
     console.print(f"report: {stem}.md")
