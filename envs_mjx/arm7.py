@@ -60,6 +60,8 @@ ASSET = Path(__file__).parent / "assets" / "arm7.xml"
 
 MODES = ("pd", "kinematic")
 REWARDS = ("sparse", "shaped", "ordinary", "path")
+ARM_REACH = 0.946
+"""Largest distance of the end-effector from the shoulder (joint 2), metres."""
 OBS = ("goal", "no_goal")
 PRECISE_THRESHOLD = 0.01
 """Goal threshold of ``arm7_precise``, metres."""
@@ -141,7 +143,7 @@ class Arm7Config:
         check_range("shaped_scale", self.shaped_scale, 0.0, lo_open=True)
         check_range("region_penalty", self.region_penalty, None, 0.0)
         check_range("goal_bonus", self.goal_bonus, 0.0)
-        check_range("region_radius", self.region_radius, 0.1, 0.946)
+        check_range("region_radius", self.region_radius, 0.1, ARM_REACH)
         check_range("region_floor", self.region_floor, -0.5, 0.8)
         _check_int("sample_tries", self.sample_tries, 1)
         check_range("sample_fraction", self.sample_fraction, 0.0, 1.0, lo_open=True)
@@ -275,6 +277,27 @@ class Arm7(RobotEnv):
             region = jnp.where(inside, zero, zero + cfg.region_penalty)
             goal = jnp.where(success, zero + cfg.goal_bonus, zero)
         return {"task": task, "region": region, "goal": goal}
+
+    def return_bounds(self, gamma: float) -> tuple[float, float] | None:
+        """Bounds ``(lo, hi)`` on the discounted return from any state under this reward and discount
+        ``gamma`` (for clipping critic targets); None for the ``ordinary`` and ``path`` rewards.
+
+        ``sparse``: every step −1 or 0 (Eq. 3.11), so ``[−1/(1−γ), 0]``.  ``shaped``: every step's task
+        term ``s·(λ·d_t^k − d_{t+1}^k)`` (Eq. 3.13) lies in ``[−s·D^k, λ·s·D^k]``, with ``D`` twice the
+        arm's reach (end-effector and goal both lie within reach of the shoulder), and an episode ends
+        at its one region penalty or goal bonus: ``[task_lo/(1−γ) + min(penalty, 0),
+        task_hi/(1−γ) + max(bonus, 0)]``.  Defaults, γ = 0.9: sparse ``[−10, 0]``, shaped ``[−19.46, 10]``.
+        """
+        cfg = self.config
+        horizon = 1.0 / (1.0 - gamma)
+        if cfg.reward == "sparse":
+            return -horizon, 0.0
+        if cfg.reward != "shaped":
+            return None
+        span = cfg.shaped_scale * (2.0 * ARM_REACH) ** cfg.shaped_k
+        lo = -span * horizon + min(cfg.region_penalty, 0.0)
+        hi = cfg.shaped_lambda * span * horizon + max(cfg.goal_bonus, 0.0)
+        return float(lo), float(hi)
 
     def compute_reward(self, achieved_next: jax.Array, desired: jax.Array, achieved_prev: jax.Array) -> jax.Array:
         """Reward ``[...]`` of a transition p_t -> p_{t+1} with goal g; equals the step reward."""

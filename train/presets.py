@@ -516,7 +516,9 @@ def ddpg_preset(
     Exploration: Gaussian σ = 0.2 (the thesis does not give the arm's noise).  With the sparse
     reward, critic targets are clipped to [−1/(1−γ), 0] and a failure (leaving the region) is
     valued as never reaching the goal (``failure_value`` −1/(1−γ)), so that leaving the region
-    is no shortcut.
+    is no shortcut.  With the shaped reward they are clipped to its return range
+    (``Arm7.return_bounds``: [−19.46, 10] at γ = 0.9): unclipped, one seed of three of HER future
+    k=2 (``fast``, one H100) saw its critic diverge (loss 12 → 5·10⁶, Q ≈ 2·10⁴) and reached 0 %.
 
     Tracking (Table 3.3, §3.5): the 'steps' schedule — one lane, one update per step once 5000
     transitions are stored, memory 50 000, batch 32, lr 1e-4 / 1e-4, ε 0.01, γ 0.9, PER, OU
@@ -540,7 +542,7 @@ def ddpg_preset(
             gamma=0.9, alpha=0.6, beta0=0.4, beta_increment=0.001, actor_hidden=(100, 100, 100),
             critic_hidden=(100, 100, 100), noise="gaussian", noise_scale=(0.2,),
             target_clip=(-10.0, 0.0) if sparse else (), failure_value=-10.0 if sparse else 0.0,
-            normalize_obs=_precise_arm(env_name),
+            clip_targets_to_env=reward == "shaped", normalize_obs=_precise_arm(env_name),
         )
         presets = {
             "thesis": {},

@@ -21,6 +21,7 @@ from jaxrl_robot.agents.ddpg import (
     td_target,
     twin_critic_loss,
 )
+from jaxrl_robot.agents.ddpg.core import with_env_target_clip
 from jaxrl_robot.checkpoint import Checkpointer
 from jaxrl_robot.evaluation import run_test_episodes, summarize_episodes
 from tests.replay.toy_goal_env import ToyGoalEnv
@@ -192,6 +193,31 @@ def test_reward_shift_enters_the_critic_target():
     np.testing.assert_allclose(float(metrics["critic_loss"]), 36.0, rtol=0.02)
 
 
+class _BoundedToyEnv(ToyGoalEnv):
+    """The toy goal env with a (deliberately tight) return range ``[-0.5, 0]``."""
+
+    def return_bounds(self, gamma):
+        return -0.5, 0.0
+
+
+def test_targets_are_clipped_to_the_env_return_bounds():
+    """As above, every stored reward is −1 and the initial Q ≈ 0: mean (Q − y)² ≈ y².  With the env's
+    bounds [−0.5, 0] the target is clipped to −0.5 (loss 0.25, unclipped 1); with reward_scale 2 the
+    bounds scale to [−1, 0] and the target −2 is clipped to −1 (loss 1, unclipped 4)."""
+    env = _BoundedToyEnv(max_steps=10, step_size=1e-4, threshold=1e-6)
+    for scale, expected in ((1.0, 0.25), (2.0, 1.0)):
+        trainer = make_trainer(_tiny(episode_length=10, updates_per_cycle=1, clip_targets_to_env=True,
+                                     reward_scale=scale, actor_hidden=(), critic_hidden=()), env)
+        _, metrics = jax.jit(trainer.update)(trainer.init(jax.random.PRNGKey(0)))
+        np.testing.assert_allclose(float(metrics["critic_loss"]), expected, rtol=0.02)
+    assert with_env_target_clip(_tiny(clip_targets_to_env=True, reward_shift=-1.0, gamma=0.9), env).target_clip \
+        == pytest.approx((-0.5 - 10.0, 0.0))  # a negative shift widens the lower bound by shift / (1 − γ)
+    with pytest.raises(ConfigError, match="clip_targets_to_env=True needs an env whose return_bounds"):
+        make_trainer(_tiny(clip_targets_to_env=True), ToyGoalEnv())
+    with pytest.raises(ConfigError, match="target_clip and clip_targets_to_env=True exclude each other"):
+        _tiny(clip_targets_to_env=True, target_clip=(-1.0, 0.0)).validate()
+
+
 def test_config_errors_name_the_field():
     with pytest.raises(ConfigError, match=r"policy_delay=0 is out of range; allowed \[1, inf\]"):
         _tiny(policy_delay=0).validate()
@@ -340,6 +366,14 @@ def test_tracking_presets_thesis_keeps_table_3_3_and_cpu_uses_the_measured_optio
             assert cfg.twin_critics and cfg.policy_delay == 2 and cfg.termination_metric == "early_termination"
             # the cost form r − 1 needs early termination valued at the worst return −1/(1 − γ)
             np.testing.assert_allclose(cfg.failure_value, cfg.reward_shift / (1.0 - cfg.gamma))
+
+
+def test_arm_presets_bound_the_critic_targets_of_both_rewards():
+    """sparse: the fixed [−10, 0]; shaped: the env's return range (resolved when the trainer is built)."""
+    for name in ("thesis", "cpu", "fast"):
+        sparse, shaped = (ddpg_preset(name, "arm7", 100, reward) for reward in ("sparse", "shaped"))
+        assert sparse.target_clip == (-10.0, 0.0) and not sparse.clip_targets_to_env
+        assert shaped.target_clip == () and shaped.clip_targets_to_env
 
 
 def test_lr_end_factor_decays_adam_step_linearly_by_hand():

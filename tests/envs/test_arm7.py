@@ -157,6 +157,26 @@ def test_sparse_shaped_ordinary_by_hand():
     assert ordinary(near) == pytest.approx(0.37 + 10.0, abs=1e-5)
 
 
+def test_return_bounds_by_hand_and_every_step_within_them():
+    """sparse [−1/(1−γ), 0]; shaped λ=0, k=1, s=0.5: [−0.5·1.892/(1−γ) − 10, 10]; λ=1, k=2, s=2: the
+    task term in ±2·1.892²; no bounds for ordinary.  Random reaching transitions (positions within the
+    arm's reach of the shoulder) stay inside the per-step range the bounds are built from."""
+    assert make(reward="sparse").return_bounds(0.9) == pytest.approx((-10.0, 0.0))
+    assert make(reward="shaped").return_bounds(0.9) == pytest.approx((-0.946 * 10 - 10.0, 10.0))
+    span = 2.0 * 1.892**2
+    assert make(reward="shaped", shaped_lambda=1, shaped_k=2, shaped_scale=2.0).return_bounds(0.5) \
+        == pytest.approx((-2 * span - 10.0, 2 * span + 10.0))
+    assert make(reward="ordinary").return_bounds(0.9) is None
+    env = make(reward="shaped")
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(3, 4096, 3))
+    pts = env.region_center + 0.946 * d / np.linalg.norm(d, axis=-1, keepdims=True) * rng.uniform(size=(3, 4096, 1))
+    nxt, goal, prev = (jnp.asarray(x, jnp.float32) for x in pts)
+    task = np.asarray(env.reward_terms(nxt, goal, prev)["task"])
+    assert task.min() >= -0.5 * 1.892 and task.max() <= 0.0
+    assert task.min() < -0.5 * 1.3  # the draw reaches far pairs, so the range is not vacuous
+
+
 def test_leaving_the_region_is_penalised_and_not_a_success():
     below = np.array([0.5, 0.0, 0.02])  # under the floor (0.05 m)
     goal_below = np.array([0.5, 0.0, 0.03])

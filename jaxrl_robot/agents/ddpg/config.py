@@ -116,6 +116,10 @@ class DDPGConfig:
     target_clip: tuple[float, ...] = ()
     """(lo, hi): clip critic targets to the reachable return range, e.g. (-10, 0) for the sparse
     reward with γ = 0.9 (as in the HER reference implementation); empty: no clipping."""
+    clip_targets_to_env: bool = False
+    """Clip critic targets to the env's bounds on the return, ``env.return_bounds(gamma)`` (scaled by
+    ``reward_scale``, widened by ``reward_shift``), instead of a fixed ``target_clip``; the env must
+    define ``return_bounds`` (``arm7`` does for its sparse and shaped rewards)."""
     max_grad_norm: float = 0.0
     """Clip gradients to this global norm (0: no clipping)."""
     target_noise: float = 0.0
@@ -263,6 +267,8 @@ class DDPGConfig:
         check_range("reward_scale", self.reward_scale, 0.0, lo_open=True)
         if self.target_clip and (len(self.target_clip) != 2 or self.target_clip[0] > self.target_clip[1]):
             raise ConfigError(f"target_clip={self.target_clip!r} must be () or (lo, hi) with lo <= hi")
+        if self.target_clip and self.clip_targets_to_env:
+            raise ConfigError("target_clip and clip_targets_to_env=True exclude each other; set one of them")
         check_range("max_grad_norm", self.max_grad_norm, 0.0)
         check_range("target_noise", self.target_noise, 0.0)
         check_range("target_noise_clip", self.target_noise_clip, 0.0)

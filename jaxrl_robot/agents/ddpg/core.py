@@ -127,6 +127,30 @@ class Setup(NamedTuple):
     imitation: Imitation | None
 
 
+def with_env_target_clip(config: DDPGConfig, env: Env) -> DDPGConfig:
+    """``config`` with ``target_clip`` set from ``env.return_bounds(gamma)`` when ``clip_targets_to_env``.
+
+    The critic's target is ``r·reward_scale + reward_shift + γ·Q'``, so the env's bounds ``[lo, hi]`` on
+    the return become ``[lo·scale + min(shift, 0)/(1−γ), hi·scale + max(shift, 0)/(1−γ)]``.
+
+    Raises:
+      ConfigError: the env gives no bounds for its settings.
+    """
+    if not config.clip_targets_to_env:
+        return config
+    bounds_of = getattr(env, "return_bounds", None)
+    bounds = bounds_of(config.gamma) if bounds_of is not None else None
+    if bounds is None:
+        raise ConfigError(
+            "clip_targets_to_env=True needs an env whose return_bounds(gamma) bounds its return; this env "
+            "gives none: set target_clip=(lo, hi) instead, or clip_targets_to_env=False"
+        )
+    shift = config.reward_shift / (1.0 - config.gamma)
+    lo = bounds[0] * config.reward_scale + min(shift, 0.0)
+    hi = bounds[1] * config.reward_scale + max(shift, 0.0)
+    return config.replace(target_clip=(float(lo), float(hi)), clip_targets_to_env=False)
+
+
 def setup(
     config: DDPGConfig, env: Env, mesh: jax.sharding.Mesh | None = None, iterations_per_update: int | None = None
 ) -> Setup:
@@ -138,6 +162,7 @@ def setup(
       ValueError: ``num_envs`` does not divide over the mesh's devices.
     """
     config.validate()
+    config = with_env_target_clip(config, env)
     chunk = iterations_per_update or (config.cycles_per_epoch if config.schedule == "episodes" else 1)
     if chunk < 1:
         raise ConfigError(f"iterations_per_update={iterations_per_update} must be >= 1")
