@@ -4,13 +4,23 @@ The suite runs in two pytest-xdist workers (``addopts`` in ``pyproject.toml``). 
 each worker allocates device memory as it needs it instead of taking most of it up front, so
 the two share the GPU.
 
+Compiled programs go to a persistent compilation cache shared by the workers and by the
+processes the tests start (``JAX_COMPILATION_CACHE_DIR``, a fresh folder per session unless set):
+many tests compile the same training programs, in-process and in subprocesses, and XLA:CPU
+compilation is most of their time.  A cached program is the same executable, so no result changes;
+the cache's size limit makes JAX lock the folder (``filelock``) while workers write it.
+
 ``envs_mjx`` is imported before any test module so that its XLA:CPU setting (see
 ``envs_mjx/xla.py``) is in place before the first JAX computation of the session, whatever
 order the test modules are collected in.
 """
 
 import os
+import tempfile
 
 os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
+if "JAX_COMPILATION_CACHE_DIR" not in os.environ:  # set once by the session's first process, inherited after
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = tempfile.mkdtemp(prefix="jaxrl-robot-test-xla-cache-")
+    os.environ.setdefault("JAX_COMPILATION_CACHE_MAX_SIZE", str(4 << 30))
 
 import envs_mjx  # noqa: E402, F401
