@@ -102,7 +102,7 @@ def test_racing_run_resumes_through_the_imitation_stage_and_drives_laps(tmp_path
 @pytest.mark.parametrize("cli", [ddpg_cli, td3_cli])
 def test_arm7_precise_budget_follows_reward_and_relabelling(cli):
     """arm7_precise: every reward gets the sparse rows' epochs, random relabelling goals twice that;
-    arm7 keeps the thesis's 200 / 100; --epochs still wins."""
+    arm7 keeps the thesis's 200 / 100 (the cpu preset: random relabelling goals twice); --epochs still wins."""
 
     def epochs(*argv):
         args = cli.parse(["--preset", "fast", *argv])
@@ -113,6 +113,9 @@ def test_arm7_precise_budget_follows_reward_and_relabelling(cli):
     assert epochs("--env", "arm7_precise", "--reward", "shaped", "--her", "future") == 20
     assert epochs("--env", "arm7_precise", "--reward", "shaped", "--her", "random") == 40
     assert epochs("--env", "arm7_precise", "--reward", "shaped", "--her", "random", "--epochs", "5") == 5
+    assert epochs("--env", "arm7", "--reward", "shaped", "--her", "random", "--preset", "cpu") == 20
+    assert epochs("--env", "arm7", "--reward", "shaped", "--her", "future", "--preset", "cpu") == 10
+    assert epochs("--env", "arm7_precise", "--reward", "shaped", "--her", "random", "--preset", "cpu") == 40
     thesis = cli.parse(["--env", "arm7_precise", "--preset", "thesis", "--her", "random"])
     assert getattr(thesis, cli.CLI.name).epochs == 400  # the env's default reward (path): 200, twice
 
