@@ -668,8 +668,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             for i, future in enumerate(as_completed(futures)):
                 row, group = futures[future]
                 got_all = future.result()
+                ran += not all(got.get("skipped") for got in got_all)  # rows found finished take no time
                 took, left = time.perf_counter() - t_start, len(jobs) - i - 1
-                eta = f", ETA {took / (i + 1) * left / 60:.0f} min" if left else ""
+                eta = f", ETA {took / ran * left / 60:.0f} min" if left and ran else ""
                 console.print(f"[bold][{i + 1}/{len(jobs)}][/bold] {row.id} done — {row.label} "
                               f"({took / 60:.1f} min in{eta})")  # fmt: skip
                 finished(i, row, group, got_all)
