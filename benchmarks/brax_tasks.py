@@ -183,6 +183,8 @@ def ours(env: Any, task: str, row: dict[str, float], steps: int, seeds: int, eva
                 state, buf = seg_fn(state, buf, done, p - done)
                 done = p
             r, m = jax.block_until_ready(test_fn(state, eval_keys))
+            print(f"  ours {algo}: {p * trainer.env_steps_per_update * repeat:,} env steps, eval return "
+                  f"{np.round(np.asarray(r), 1).tolist()}, {time.perf_counter() - t0:.0f} s", flush=True)
             curve.append(np.asarray(r))
             curve_mean.append(np.asarray(m))
         return np.stack(curve, -1), np.stack(curve_mean, -1), np.asarray(buf)
