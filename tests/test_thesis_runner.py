@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import glob
+import importlib
 import json
 import os
 
@@ -90,6 +91,16 @@ def test_table_3_1_smoke_report_resume_and_missing_rows(tmp_path, monkeypatch):
     md = open(missing["stem"] + ".md").read()
     assert md.count("**missing**") == 1 and "not built" in md
     assert not os.path.exists(os.path.join(runs, "3.1", "absent"))
+
+
+def test_an_interrupted_row_stops_the_runner_with_one_line(monkeypatch):
+    """A row's run that SIGTERM stopped (exit 143, checkpointed) ends the runner instead of moving on."""
+    row = thesis.ROWS[0]
+    monkeypatch.setattr(importlib.import_module(f"train.{row.algo}"), "main", lambda argv: 143)
+    with pytest.raises(SystemExit, match=f"interrupted: {row.id} stopped with a checkpoint; the same command"):
+        thesis.run_in_process(row, [], quiet=True)
+    monkeypatch.setattr(importlib.import_module(f"train.{row.algo}"), "main", lambda argv: 1)
+    assert thesis.run_in_process(row, [], quiet=True)[0] == 1  # a failed row is recorded, the runner goes on
 
 
 def test_racing_rows_by_hand(tmp_path):

@@ -27,7 +27,8 @@ processes of a run over several hosts, parses (the preset's defaults for ``--env
    continues exactly where the checkpoint left it;
 3. calls the jitted ``update`` chunk after chunk, writing ``metrics.csv`` and TensorBoard
    events (``tb/``), drawing a progress bar (only on a terminal, not under CI), saving a
-   checkpoint every ``checkpoint_every`` chunks and at the end;
+   checkpoint every ``checkpoint_every`` chunks and at the end; SIGINT (Ctrl-C) or SIGTERM stops
+   it after the current chunk with a checkpoint (a second Ctrl-C at once), and ``--resume`` continues;
 4. stops with :class:`NonFiniteLossError` (naming the metric and env step) when a loss turns
    NaN/inf, after saving the last good state as a checkpoint;
 5. evaluates the final policy — reaching envs: success over ``eval_episodes`` test episodes
@@ -54,12 +55,15 @@ process on its own devices from its copy of the replicated parameters (identical
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import functools
 import json
 import math
 import os
+import signal
 import sys
+import threading
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -438,6 +442,36 @@ def _progress_info(metrics: dict[str, float], sps: float) -> str:
     return "  ".join(parts)
 
 
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+"""Signals that stop a run after its current chunk, checkpointed (:func:`stop_on_signals`)."""
+
+
+@contextlib.contextmanager
+def stop_on_signals(enabled: bool = True):
+    """While the block runs, SIGINT (Ctrl-C) and SIGTERM ask the run to stop after its current chunk;
+    yields a dict whose ``"signal"`` holds the first such signal's number (0 while none came).  A second
+    SIGINT interrupts at once.  Only in the main thread (where Python runs signal handlers) and when
+    ``enabled`` (not across several processes, which must stop together); the previous handlers come back
+    at the end of the block."""
+    got = {"signal": 0}
+    if not enabled or threading.current_thread() is not threading.main_thread():
+        yield got
+        return
+
+    def handler(signum: int, frame: Any) -> None:
+        got["signal"] = got["signal"] or signum
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # a second Ctrl-C: at once
+
+    previous = {s: signal.getsignal(s) for s in STOP_SIGNALS}
+    for s in STOP_SIGNALS:
+        signal.signal(s, handler)
+    try:
+        yield got
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
+
+
 def run(spec: RunSpec) -> dict[str, Any]:
     """Train, log, checkpoint and evaluate as the module docstring describes.
 
@@ -497,7 +531,11 @@ def run(spec: RunSpec) -> dict[str, Any]:
 
     compile_s, last_saved = None, chunk if resuming else -1
     t_loop = time.perf_counter()
-    try:
+    with contextlib.ExitStack() as stack:
+        interrupt = stack.enter_context(stop_on_signals(jax.process_count() == 1))
+        stack.callback(bar.close)
+        for logger in loggers:
+            stack.callback(logger.close)
         while chunk < stop_chunk:
             t_chunk = time.perf_counter()
             new_state, metrics = program.update(state)
@@ -520,13 +558,11 @@ def run(spec: RunSpec) -> dict[str, Any]:
             for logger, m in zip(loggers, per_seed, strict=False):  # no loggers off process 0
                 logger.write(chunk * steps_per, {**m, "steps_per_s": sps})
             bar.update(chunk * steps_per, _progress_info(per_seed[0], sps))
+            if interrupt["signal"] and chunk < stop_chunk:
+                stop_chunk = chunk  # saved just below, then the loop ends
             if chunk % max(spec.checkpoint_every, 1) == 0 or chunk == stop_chunk:
                 ckpt.save(chunk, state, record(chunk, wall_before + time.perf_counter() - t0))
                 last_saved = chunk
-    finally:
-        bar.close()
-        for logger in loggers:
-            logger.close()
     jax.block_until_ready(state)
     train_s = time.perf_counter() - t_loop
     result: dict[str, Any] = {
@@ -538,6 +574,9 @@ def run(spec: RunSpec) -> dict[str, Any]:
     }
     for logger, d in zip(loggers, seed_dirs, strict=False):  # no loggers off process 0
         plot_training_curves(read_csv(logger.path), d)
+    if interrupt["signal"]:
+        result["interrupted"] = int(interrupt["signal"])
+        _say(f"{signal.Signals(interrupt['signal']).name}: stopped after chunk {chunk}, checkpoint saved")
     if not result["finished"]:
         result["wall_s"] = wall_before + time.perf_counter() - t0
         _say(f"stopped at {result['env_steps']} env steps; continue with --resume {run_dir}")
@@ -890,7 +929,8 @@ def cli_main(cli: AlgorithmCLI, argv: Sequence[str] | None = None) -> int:
 
     Returns:
       0 on a finished run (or one stopped on purpose), 1 after a non-finite loss or an
-      unfinished run, 2 on bad input (the message names the field and the valid values).
+      unfinished run, 2 on bad input (the message names the field and the valid values),
+      128 + the signal's number after SIGINT / SIGTERM stopped it (checkpointed; ``--resume`` continues).
     """
     from envs_mjx.config import ConfigError
 
@@ -925,4 +965,6 @@ def cli_main(cli: AlgorithmCLI, argv: Sequence[str] | None = None) -> int:
     if cli.after is not None and is_main_process():
         for one in result.get("seeds", [result]):
             cli.after({**result, **one})
+    if result.get("interrupted") and not result.get("finished"):
+        return 128 + result["interrupted"]  # the shell's code for a run ended by that signal
     return 0 if result.get("finished") or args.stop_after_steps else 1

@@ -1,8 +1,10 @@
 """``python -m train.ppo``: a tiny run by subprocess, resume = uninterrupted, bad input, the NaN guard."""
 
+import dataclasses
 import glob
 import json
 import os
+import signal
 import subprocess
 import sys
 
@@ -255,6 +257,49 @@ def test_resume_before_the_first_checkpoint_starts_that_run_over(tmp_path, capsy
     assert int(state["count"]) == 3 and record["env_steps"] == 300
     rows = common.read_csv(str(run_dir / "metrics.csv"))
     assert [int(float(r["env_steps"])) for r in rows] == [100, 200, 300]  # the killed run's row replaced
+
+
+def test_sigterm_stops_after_the_chunk_with_a_checkpoint_and_resume_continues(tmp_path, monkeypatch, capsys):
+    """A SIGTERM that arrives while chunk 3 is logged stops the run after that chunk: its state is saved
+    although the checkpoint interval (100) is far, the handlers in place before come back, and
+    ``--resume`` continues from chunk 3 (to 6, with ``stop_after_steps``)."""
+
+    class SignalledLogger(common.MetricsLogger):
+        def write(self, step, metrics):
+            super().write(step, metrics)
+            if step == 300:
+                signal.raise_signal(signal.SIGTERM)
+
+    monkeypatch.setattr(common, "MetricsLogger", SignalledLogger)
+    before = signal.getsignal(signal.SIGTERM)
+    spec = common.RunSpec(
+        algo="fake", env_name="none", env=None, trainer=_nan_trainer(bad_chunk=99), config={}, out=str(tmp_path),
+        checkpoint_every=100, progress=False,
+    )  # fmt: skip
+    result = common.run(spec)
+    assert result["interrupted"] == signal.SIGTERM and not result["finished"] and result["env_steps"] == 300
+    assert "SIGTERM: stopped after chunk 3, checkpoint saved" in capsys.readouterr().out
+    assert signal.getsignal(signal.SIGTERM) is before
+    ckpt = Checkpointer(os.path.join(result["run_dir"], "checkpoints"))
+    assert ckpt.latest_step() == 3
+    ckpt.close()
+    monkeypatch.undo()
+    again = common.run(dataclasses.replace(spec, run_dir=result["run_dir"], stop_after_steps=600))
+    assert again["env_steps"] == 600 and "interrupted" not in again
+    state, _ = Checkpointer(os.path.join(result["run_dir"], "checkpoints")).restore(6, _nan_trainer(99).init(None))
+    assert int(state["count"]) == 6
+
+
+def test_a_second_ctrl_c_interrupts_at_once():
+    before = signal.getsignal(signal.SIGINT)
+    with common.stop_on_signals() as got:
+        signal.raise_signal(signal.SIGINT)
+        assert got["signal"] == signal.SIGINT
+        with pytest.raises(KeyboardInterrupt):
+            signal.raise_signal(signal.SIGINT)
+    assert signal.getsignal(signal.SIGINT) is before
+    with common.stop_on_signals(enabled=False) as got:  # several processes: the handlers stay as they were
+        assert signal.getsignal(signal.SIGINT) is before and got["signal"] == 0
 
 
 def test_brax_preset_converts_brax_settings_and_auto_picks_it(capsys):
