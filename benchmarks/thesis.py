@@ -17,7 +17,8 @@ are listed as **missing** with the reason.
 Resumable: a seed whose run directory has ``eval.json`` is done and skipped; a run directory
 without it (a killed run) continues with ``--resume``; rerunning the command finishes the rest
 and rewrites the report.  The report is rewritten after every finished row, so a killed
-invocation leaves the rows it finished.
+invocation leaves the rows it finished.  Ctrl-C (or SIGTERM) stops a row's run after its current
+chunk with a checkpoint, and the runner with it; the same command continues from there.
 
 Report: ``<out>/thesis-<device>-<preset>.md`` (and ``.json``), one section per table — the
 thesis's figure, ours as mean ± std over seeds with the per-seed values, met / not met against
