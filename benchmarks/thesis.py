@@ -58,7 +58,6 @@ import os
 import queue
 import re
 import shutil
-import signal
 import subprocess
 import sys
 import time
@@ -252,10 +251,6 @@ def run_record(run_dir: str | None, code: Any, wall: float, where: str = "") -> 
     return {**json.load(open(os.path.join(run_dir, "eval.json"))), "run_dir": run_dir, "process_s": wall}
 
 
-INTERRUPTED = (128 + signal.SIGINT, 128 + signal.SIGTERM)
-"""Exit codes of a ``train.<algo>`` run that SIGINT / SIGTERM stopped (checkpointed)."""
-
-
 def run_in_process(row: Row, argv: list[str], quiet: bool) -> tuple[Any, float]:
     """``python -m train.<algo> argv`` of ``row`` in this process: ``(exit code, wall s)``."""
     main = importlib.import_module(f"train.{row.algo}").main
@@ -265,7 +260,9 @@ def run_in_process(row: Row, argv: list[str], quiet: bool) -> tuple[Any, float]:
             code = main(argv)
         except SystemExit as e:  # a command line that does not parse
             code = e.code
-    if code in INTERRUPTED:  # Ctrl-C / SIGTERM: the run saved a checkpoint; so does the rest of the table
+    from train.common import STOP_SIGNALS
+
+    if code in [128 + s for s in STOP_SIGNALS]:  # Ctrl-C / SIGTERM: the run saved a checkpoint and stopped
         raise SystemExit(f"interrupted: {row.id} stopped with a checkpoint; the same command continues it")
     return code, time.perf_counter() - t0
 

@@ -574,7 +574,7 @@ def run(spec: RunSpec) -> dict[str, Any]:
     }
     for logger, d in zip(loggers, seed_dirs, strict=False):  # no loggers off process 0
         plot_training_curves(read_csv(logger.path), d)
-    if interrupt["signal"]:
+    if interrupt["signal"] and not result["finished"]:  # on the last chunk the run ends as it would anyway
         result["interrupted"] = int(interrupt["signal"])
         _say(f"{signal.Signals(interrupt['signal']).name}: stopped after chunk {chunk}, checkpoint saved")
     if not result["finished"]:
@@ -965,6 +965,6 @@ def cli_main(cli: AlgorithmCLI, argv: Sequence[str] | None = None) -> int:
     if cli.after is not None and is_main_process():
         for one in result.get("seeds", [result]):
             cli.after({**result, **one})
-    if result.get("interrupted") and not result.get("finished"):
+    if result.get("interrupted"):
         return 128 + result["interrupted"]  # the shell's code for a run ended by that signal
     return 0 if result.get("finished") or args.stop_after_steps else 1
