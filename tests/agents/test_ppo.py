@@ -250,6 +250,27 @@ def test_make_train_vmaps_over_seeds_and_matches_chunked_runs(toy):
     assert not np.allclose(kernels[0], kernels[1])
 
 
+def test_critic_first_takes_advantages_from_the_critic_after_this_iterations_updates():
+    """One iteration with ``critic_first``: the critic ends where the thesis's order leaves it (its steps
+    do not depend on the actor's), and the actor ends where the thesis's order takes it when it starts
+    from that updated critic (its advantages come from the critic it starts with)."""
+    config = TOY.replace(batch_norm=False, objective="clip", schedule=(), actor_updates=4, critic_updates=8,
+                          critic_lr=0.03)
+    first = jax.jit(make_trainer(config.replace(critic_first=True), Line()).update)
+    plain_trainer = make_trainer(config, Line())
+    plain = jax.jit(plain_trainer.update)
+    s0 = jax.jit(plain_trainer.init)(jax.random.PRNGKey(4))
+    s_first, _ = first(s0)
+    s_plain, _ = plain(s0)
+    s_oracle, _ = plain(s0.replace(critic_params=s_first.critic_params))
+    close = lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)  # noqa: E731
+    jax.tree.map(close, s_first.critic_params, s_plain.critic_params)
+    jax.tree.map(close, s_first.actor_params, s_oracle.actor_params)
+    moved = lambda s: np.abs(s.actor_params["Dense_0"]["kernel"] - s0.actor_params["Dense_0"]["kernel"])  # noqa: E731
+    change = np.abs(s_first.actor_params["Dense_0"]["kernel"] - s_plain.actor_params["Dense_0"]["kernel"]).max()
+    assert change > 0.1 * moved(s_first).max()  # the advantages did change
+
+
 # ---------------------------------------------------------------------------------------------
 # batch-norm actor: π_old is the policy that acted
 

@@ -259,15 +259,35 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
         next_obs = obs_norm(obs_stats, traj.next_obs)
         inputs = (mem_seq, reset, obs)
 
+        rewards = traj.reward * config.reward_scale
         values, after = nets.critic_forward(state.critic_params, *inputs)
         next_values = nets.next_values(state.critic_params, after, next_obs)
-        rewards = traj.reward * config.reward_scale
-        per_lane = dict(in_axes=(1, 1, 1, 1, 1, None, None), out_axes=1)
-        adv = jax.vmap(gae, **per_lane)(
-            rewards, values, next_values, traj.termination, traj.truncation, config.gamma, config.gae_lambda
-        )
         targets = jax.vmap(lambda_returns, in_axes=(1, 1, 1, 1, None, None), out_axes=1)(
             rewards, next_values, traj.termination, traj.truncation, config.gamma, config.gae_lambda
+        )
+
+        # n critic updates on λ-return targets (Algorithm 8, lines 11-16).
+        def critic_step(carry, k):
+            params, opt = carry
+            mb = minibatch(k, lane_ids, (inputs, targets))
+            loss, grads = jax.value_and_grad(critic_loss_fn)(params, mb)
+            return common.apply_gradients(critic_tx, parallel.pmean(grads), opt, params), loss
+
+        def critic_update():
+            return jax.lax.scan(
+                critic_step, (state.critic_params, state.critic_opt), jax.random.split(k_critic, config.critic_updates)
+            )
+
+        if config.critic_first:
+            # The critic learns from this batch first; the advantages then come from the updated critic.
+            (critic_params, critic_opt), c_loss = critic_update()
+            adv_values, after = nets.critic_forward(critic_params, *inputs)
+            adv_next_values = nets.next_values(critic_params, after, next_obs)
+        else:
+            adv_values, adv_next_values = values, next_values
+        per_lane = dict(in_axes=(1, 1, 1, 1, 1, None, None), out_axes=1)
+        adv = jax.vmap(gae, **per_lane)(
+            rewards, adv_values, adv_next_values, traj.termination, traj.truncation, config.gamma, config.gae_lambda
         )
         if config.normalize_advantages:
             mu = parallel.pmean(jnp.mean(adv))
@@ -316,16 +336,8 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
             adapted = adapt_kl_beta(kl_beta, kl, config.kl_target, config.kl_beta_min, config.kl_beta_max)
             kl_beta = jnp.where(pretraining, kl_beta, adapted)
 
-        # n critic updates on λ-return targets (Algorithm 8, lines 11-16).
-        def critic_step(carry, k):
-            params, opt = carry
-            mb = minibatch(k, lane_ids, (inputs, targets))
-            loss, grads = jax.value_and_grad(critic_loss_fn)(params, mb)
-            return common.apply_gradients(critic_tx, parallel.pmean(grads), opt, params), loss
-
-        (critic_params, critic_opt), c_loss = jax.lax.scan(
-            critic_step, (state.critic_params, state.critic_opt), jax.random.split(k_critic, config.critic_updates)
-        )
+        if not config.critic_first:
+            (critic_params, critic_opt), c_loss = critic_update()
 
         # Same dtypes in as out (an env may return weak-typed metrics), so the jitted chunk never retraces.
         env_state = common.cast_like(env_state, state.env_state)
