@@ -133,7 +133,7 @@ def run_test_episodes(
         memory, action = policy.step(memory, s.obs)
         ns = jax.vmap(env.step)(s, action)
         live = 1.0 - finished
-        ret = ret + live * ns.reward
+        ret = ret + jnp.where(live > 0, ns.reward, 0.0)  # a finished episode's env may go on to NaN
         length = length + live
         ending = live * ns.done.astype(jnp.float32)
         final = jax.tree.map(lambda f, m: jnp.where(live > 0, m, f), final, dict(ns.metrics))

@@ -52,6 +52,31 @@ def test_success_at_each_threshold_equals_a_run_on_the_env_with_that_threshold()
         assert got["closest_distance_median"] <= got["closest_distance_p90"] <= got["closest_distance_max"]
 
 
+class _FallsAfterThreeSteps:
+    """An episode of 3 steps (reward 1 each) whose env, stepped on after the end, returns NaN rewards
+    (as brax's inverted_double_pendulum on MJX can once the fallen pendulum is left to run)."""
+
+    episode_length = 10
+
+    def reset(self, key):
+        from brax.envs.base import State
+
+        z = jnp.zeros(())
+        return State(z, jnp.zeros(1), z, z, {}, {})
+
+    def step(self, state, action):
+        t = state.pipeline_state + 1.0
+        reward = jnp.where(t > 3, jnp.nan, 1.0) + 0.0 * action[0]
+        return state.replace(pipeline_state=t, obs=jnp.full(1, t), reward=reward, done=(t >= 3).astype(jnp.float32))
+
+
+def test_returns_count_only_the_live_steps_of_an_env_that_turns_nan_after_the_end():
+    got = run_test_episodes(jax.random.PRNGKey(0), _FallsAfterThreeSteps(), lambda obs: jnp.zeros((obs.shape[0], 1)), 4)
+    np.testing.assert_array_equal(got["return"], 3.0)
+    np.testing.assert_array_equal(got["length"], 3.0)
+    np.testing.assert_array_equal(got["terminated"], 1.0)
+
+
 def test_precision_summary_by_hand():
     got = precision_summary({"closest_distance": np.array([0.004, 0.012, 0.03, 0.07])})
     assert (got["success_5cm"], got["success_2cm"], got["success_1cm"]) == (0.75, 0.5, 0.25)
