@@ -433,6 +433,7 @@ def stem_of(out: str, device: str, algo: str, label: str = "") -> str:
 def merge(paths: list[str], out: str, argv: list[str] | None = None, label: str = "", note: str = "") -> dict[str, Any]:
     """One report of several results files of one algorithm: per task (in the order first seen), our side
     from the last file that ran ours, brax's joined over files of different seeds (:func:`join_seeds`);
+    named after the device of the last file that ran ours (each invocation's device is in its provenance);
     their provenance records (a merged file's own sources first) come first in the new file's, then the
     merge's own. ``note``: a paragraph under the table (a part's note is not carried over)."""
     parts = []
@@ -453,12 +454,14 @@ def merge(paths: list[str], out: str, argv: list[str] | None = None, label: str 
                 merged["sides"] = sorted(set(merged["sides"]) | {side}, reverse=True)
     for part, path in zip(parts, paths, strict=True):
         part["provenance"].setdefault("note", f"merged from {os.path.basename(path)}")
-    stem = stem_of(out, first["device"], first.get("algo", "ppo"), label)
-    prov = provenance.record("benchmarks.brax_tasks", argv, device_info=first["provenance"]["device"],
+    ran_ours = [p for p in parts if any("ours" in r.get("sides", ("ours",)) for r in p["tasks"])]
+    named = (ran_ours or parts)[-1]  # the file is named after the device our side last ran on
+    stem = stem_of(out, named["device"], first.get("algo", "ppo"), label)
+    prov = provenance.record("benchmarks.brax_tasks", argv, device_info=named["provenance"]["device"],
                              seeds="as in the invocations above",
                              note="this file merges the results files of the invocations above")  # fmt: skip
-    ran_ours = [p for p in parts if any("ours" in r.get("sides", ("ours",)) for r in p["tasks"])]
-    first = {**{k: v for k, v in first.items() if k != "note"}, "seed_map": (ran_ours or parts)[0]["seed_map"]}
+    first = {**{k: v for k, v in first.items() if k != "note"}, "seed_map": (ran_ours or parts)[0]["seed_map"],
+             "device": named["device"]}
     sources = [source for p in parts for source in [*p.get("sources", []), p["provenance"]]]
     result = {**first, "tasks": list(tasks.values()), "figures": stem + "-figures", "merged_from": paths,
               "seeds": max(p["seeds"] for p in parts), "brax_seeds": max([p["brax_seeds"] for p in parts]

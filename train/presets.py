@@ -88,11 +88,16 @@ def brax_ppo_config(task: str, action_size: int, **row: float) -> PPOConfig:
     Here one iteration is ``num_envs`` lanes × ``unroll_length`` (N) steps, so N = those unrolls per
     lane × ``unroll_length``; a mini-batch holds ``batch_size · unroll_length`` transitions rounded
     down to a multiple of the lanes (B / K from every lane); actor and critic each take as many steps
-    as brax's passes cover. The networks are brax's defaults (policy 4 × 32, value 5 × 256, no
-    batch-norm), with a learned state-independent σ starting at softplus(0) ≈ 0.7 (brax's starting
-    scale; brax learns a state-dependent one), clip ε 0.3 and GAE λ 0.95 (brax's defaults),
-    normalised observations and advantages, one Adam learning rate for both; actions clipped to [−1, 1]
-    before the env (brax's policy squashes them with tanh; its envs charge control cost on the action given).
+    as brax's passes cover. The networks and the policy are brax's (``make_ppo_networks`` defaults:
+    policy 4 × 32 and value 5 × 256 with swish, no batch-norm; the action is ``tanh`` of a Gaussian
+    sample whose σ(s) = softplus(·) + 0.001 comes from an output layer of the policy, starting at
+    softplus(0) ≈ 0.7, with the squashed action's entropy), clip ε 0.3 and GAE λ 0.95 (brax's
+    defaults), normalised observations and advantages, one Adam learning rate for both. The critic
+    trains on each batch before the actor (``critic_first``), which brings the advantages nearer to
+    brax's, recomputed with the critic of every mini-batch: at 5 M env steps, 3 seeds, on one H100,
+    sampled actions, this policy with critic_first against the state-independent σ with clipped
+    actions — halfcheetah 1295 ± 79 against 1035 ± 75, reacher −22.6 ± 0.7 against −92.5 ± 0.2,
+    inverted_pendulum 1000 against 981 (``benchmarks/results/*brax_tasks-5M-brax-policy*``).
     """
     if task not in BRAX_PPO:
         raise KeyError(f"no brax PPO settings for {task!r}; known: {', '.join(BRAX_PPO)}")
@@ -107,7 +112,8 @@ def brax_ppo_config(task: str, action_size: int, **row: float) -> PPOConfig:
         total_steps=int(b["num_timesteps"]), gamma=float(b["discounting"]), gae_lambda=0.95, clip_eps=0.3,
         entropy_coef=float(b["entropy_cost"]), reward_scale=float(b["reward_scaling"]),
         actor_lr=float(b["learning_rate"]), critic_lr=float(b["learning_rate"]), sigma=(0.7,) * action_size,
-        learn_std=True, clip_actions=True, normalize_obs=True, normalize_advantages=True, batch_norm=False,
+        learn_std=True, state_std=True, tanh_actions=True, activation="swish", critic_first=True,
+        normalize_obs=True, normalize_advantages=True, batch_norm=False,
         actor_hidden=(32, 32, 32, 32), critic_hidden=(256,) * 5, episode_length=int(b["episode_length"]),
         reset_refresh=1.0,
     )  # fmt: skip

@@ -313,6 +313,7 @@ def test_brax_preset_converts_brax_settings_and_auto_picks_it(capsys):
     assert shape == (2048, 80, 4096, 160, 160)
     assert (c.gamma, c.entropy_coef, c.reward_scale, c.clip_eps, c.total_steps) == (0.97, 0.01, 10.0, 0.3, 2_000_000)
     assert c.normalize_obs and c.learn_std and not c.batch_norm and c.actor_lr == c.critic_lr == 3e-4
+    assert c.state_std and c.tanh_actions and c.activation == "swish" and c.critic_first  # brax's policy
     hc = presets.brax_ppo_config("halfcheetah", 6)
     assert (hc.unroll_length, hc.minibatch_size, hc.actor_updates, hc.gamma) == (160, 10240, 256, 0.95)
     # benchmarks.brax_tasks --num-envs 64: the batch scales with the envs, the per-lane structure stays
