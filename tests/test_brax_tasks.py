@@ -187,7 +187,7 @@ def test_our_config_takes_overrides_and_a_bad_one_is_a_one_line_error(capsys):
     config = brax_tasks.our_config("ppo", "halfcheetah", 6, BRAX_PPO["halfcheetah"], 1000, {"tanh_actions": True,
                                    "clip_actions": False, "activation": "swish"})  # fmt: skip
     assert config.tanh_actions and not config.clip_actions and config.activation == "swish"
-    for bad, message in (("nope=1", "unknown setting 'nope'"), ("tanh_actions=true", "exclude each other")):
+    for bad, message in (("nope=1", "unknown setting 'nope'"), ("clip_actions=true", "exclude each other")):
         try:
             brax_tasks.main(["--tasks", "halfcheetah", "--ours", bad])
         except SystemExit as e:
