@@ -94,9 +94,9 @@ def brax_ppo_config(task: str, action_size: int, **row: float) -> PPOConfig:
     softplus(0) ≈ 0.7, with the squashed action's entropy), clip ε 0.3 and GAE λ 0.95 (brax's
     defaults), normalised observations and advantages, one Adam learning rate for both. The critic
     trains on each batch before the actor (``critic_first``), which brings the advantages nearer to
-    brax's, recomputed with the critic of every mini-batch: at 5 M env steps, 3 seeds, on one H100,
-    sampled actions, this policy with critic_first against the state-independent σ with clipped
-    actions — halfcheetah 1295 ± 79 against 1035 ± 75, reacher −22.6 ± 0.7 against −92.5 ± 0.2,
+    brax's, recomputed with the critic of every mini-batch: at 5 M env steps, 3 seeds, sampled
+    actions, this policy with critic_first (one H100) against the state-independent σ with clipped
+    actions (an H200) — halfcheetah 1295 ± 79 against 1035 ± 75, reacher −22.6 ± 0.7 against −92.5 ± 0.2,
     inverted_pendulum 1000 against 981 (``benchmarks/results/*brax_tasks-5M-brax-policy*``).
     """
     if task not in BRAX_PPO:
