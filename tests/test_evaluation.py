@@ -7,6 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from brax.envs.base import State
 
 import envs_mjx
 from jaxrl_robot.evaluation import (
@@ -59,14 +60,12 @@ class _FallsAfterThreeSteps:
     episode_length = 10
 
     def reset(self, key):
-        from brax.envs.base import State
-
         z = jnp.zeros(())
         return State(z, jnp.zeros(1), z, z, {}, {})
 
     def step(self, state, action):
         t = state.pipeline_state + 1.0
-        reward = jnp.where(t > 3, jnp.nan, 1.0) + 0.0 * action[0]
+        reward = jnp.where(t > 3, jnp.nan, 1.0)
         return state.replace(pipeline_state=t, obs=jnp.full(1, t), reward=reward, done=(t >= 3).astype(jnp.float32))
 
 

@@ -260,8 +260,13 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
         inputs = (mem_seq, reset, obs)
 
         rewards = traj.reward * config.reward_scale
-        values, after = nets.critic_forward(state.critic_params, *inputs)
-        next_values = nets.next_values(state.critic_params, after, next_obs)
+
+        def values_of(critic_params: Any) -> tuple[jax.Array, jax.Array]:
+            """``(V(s), V(s'))`` ``[N, k_local]`` of the batch under ``critic_params``."""
+            values, after = nets.critic_forward(critic_params, *inputs)
+            return values, nets.next_values(critic_params, after, next_obs)
+
+        values, next_values = values_of(state.critic_params)
         targets = jax.vmap(lambda_returns, in_axes=(1, 1, 1, 1, None, None), out_axes=1)(
             rewards, next_values, traj.termination, traj.truncation, config.gamma, config.gae_lambda
         )
@@ -281,8 +286,7 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
         if config.critic_first:
             # The critic learns from this batch first; the advantages then come from the updated critic.
             (critic_params, critic_opt), c_loss = critic_update()
-            adv_values, after = nets.critic_forward(critic_params, *inputs)
-            adv_next_values = nets.next_values(critic_params, after, next_obs)
+            adv_values, adv_next_values = values_of(critic_params)
         else:
             adv_values, adv_next_values = values, next_values
         per_lane = dict(in_axes=(1, 1, 1, 1, 1, None, None), out_axes=1)
