@@ -28,6 +28,7 @@ from jaxrl_robot.types import Policy, RecurrentPolicy, as_recurrent
 
 __all__ = [
     "PRECISION_THRESHOLDS",
+    "freeze",
     "precision_summary",
     "run_test_episodes",
     "sampling_policy",
@@ -89,6 +90,11 @@ def two_policies(first: Policy | RecurrentPolicy, second: Policy | RecurrentPoli
     return RecurrentPolicy((a.carry, b.carry), step)
 
 
+def freeze(live: jax.Array, old: Any, new: Any) -> Any:
+    """``new`` where ``live [E]`` > 0, else ``old``: a pytree of ``[E, ...]`` leaves, lane by lane."""
+    return jax.tree.map(lambda o, n: jnp.where(live.reshape(live.shape + (1,) * (n.ndim - 1)) > 0, n, o), old, new)
+
+
 def run_test_episodes(
     key: jax.Array,
     env: Env,
@@ -131,9 +137,10 @@ def run_test_episodes(
     def body(carry, _):
         s, memory, finished, ret, length, final, closest = carry
         memory, action = policy.step(memory, s.obs)
-        ns = jax.vmap(env.step)(s, action)
         live = 1.0 - finished
-        ret = ret + jnp.where(live > 0, ns.reward, 0.0)  # a finished episode's env may go on to NaN
+        # a finished episode's lane keeps its last state: an env stepped past its end may drift to NaN
+        ns = freeze(live, s, jax.vmap(env.step)(s, action))
+        ret = ret + jnp.where(live > 0, ns.reward, 0.0)  # the live steps' rewards alone
         length = length + live
         ending = live * ns.done.astype(jnp.float32)
         final = jax.tree.map(lambda f, m: jnp.where(live > 0, m, f), final, dict(ns.metrics))

@@ -11,6 +11,7 @@ from brax.envs.base import State
 
 import envs_mjx
 from jaxrl_robot.evaluation import (
+    freeze,
     precision_summary,
     run_test_episodes,
     sampling_policy,
@@ -74,6 +75,14 @@ def test_returns_count_only_the_live_steps_of_an_env_that_turns_nan_after_the_en
     np.testing.assert_array_equal(got["return"], 3.0)
     np.testing.assert_array_equal(got["length"], 3.0)
     np.testing.assert_array_equal(got["terminated"], 1.0)
+
+
+def test_freeze_keeps_the_last_state_of_finished_lanes_by_hand():
+    old = {"x": jnp.array([1.0, 2.0, 3.0]), "q": jnp.array([[1.0, 1.0], [2.0, 2.0], [3.0, 3.0]])}
+    new = {"x": jnp.array([10.0, jnp.nan, 30.0]), "q": jnp.array([[10.0, 10.0], [jnp.nan, 0.0], [30.0, 30.0]])}
+    got = freeze(jnp.array([1.0, 0.0, 0.0]), old, new)
+    np.testing.assert_array_equal(got["x"], [10.0, 2.0, 3.0])
+    np.testing.assert_array_equal(got["q"], [[10.0, 10.0], [2.0, 2.0], [3.0, 3.0]])
 
 
 def test_precision_summary_by_hand():
