@@ -98,7 +98,8 @@ def brax_ppo_config(task: str, action_size: int, **row: float) -> PPOConfig:
     actions, this policy with critic_first (one H100) against the state-independent σ with clipped
     actions (an H200) — halfcheetah 1295 ± 79 against 1035 ± 75, reacher −22.6 ± 0.7 against −92.5 ± 0.2,
     inverted_pendulum 1000 against 981 (``benchmarks/results/*brax_tasks-5M-brax-policy*``); hopper
-    492 ± 89 against brax's own PPO's 425 ± 87 on the same H200 (``*brax_tasks-5M-hopper*``).
+    492 ± 89 against brax's own PPO's 425 ± 87 on the same H200 (``*brax_tasks-5M-hopper*``);
+    inverted_double_pendulum 9169 ± 212 against brax's 2218 ± 1437 on the same H100 (``*brax_tasks-5M-idp*``).
     """
     if task not in BRAX_PPO:
         raise KeyError(f"no brax PPO settings for {task!r}; known: {', '.join(BRAX_PPO)}")
