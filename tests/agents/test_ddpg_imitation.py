@@ -13,6 +13,7 @@ from brax.envs.base import State
 from envs_mjx.base import RobotEnv, sanitize_action
 from envs_mjx.config import ConfigError
 from jaxrl_robot.agents.ddpg import DDPGConfig, make_train, make_trainer
+from jaxrl_robot.agents.ddpg.losses import anchored_actor_loss
 from jaxrl_robot.imitation import expert_of, imitation_loss, mix_teacher, teacher_share
 
 
@@ -87,6 +88,7 @@ def test_teacher_share_and_mixing_by_hand():
         (dict(imitation_batch=0), "imitation_batch"),
         (dict(expert_share=1.5), "expert_share"),
         (dict(distributed=True), "distributed"),
+        (dict(imitation_anchor="bc"), "imitation_anchor"),
     ],
 )
 def test_config_errors_name_the_field(changes, field):
@@ -158,3 +160,40 @@ def test_after_the_stage_ddpg_takes_over_and_the_anchor_keeps_imitating():
             losses.append(float(metrics["imitation_loss"]))
         assert np.isfinite(losses[:2]).all()
         assert np.isnan(losses[2:]).all() if weight == 0 else np.isfinite(losses).all()
+
+
+def test_anchored_actor_loss_by_hand():
+    """``−mean Q / mean |Q| + w · bc`` with the scale held constant: Q = (1, 3, 2) gives −1 + w · bc, and
+    ∂/∂Q_i = −1 / (N · mean |Q|) = −1/6 (a scale that took gradients would make the Q term constant)."""
+    q, bc = jnp.array([1.0, 3.0, 2.0]), jnp.asarray(0.25)
+    assert float(anchored_actor_loss(q, bc, 2.0)) == pytest.approx(-1.0 + 0.5)
+    dq, dbc = jax.grad(anchored_actor_loss, argnums=(0, 1))(q, bc, 2.0)
+    np.testing.assert_allclose(dq, [-1.0 / 6.0] * 3, rtol=1e-6)
+    assert float(dbc) == pytest.approx(2.0)
+    assert float(anchored_actor_loss(jnp.zeros(3), bc, 1.0)) == pytest.approx(0.25)  # no division by zero
+
+
+def test_anchor_in_the_actor_loss_replaces_the_imitation_steps_after_the_stage():
+    """``imitation_anchor='loss'``: after the stage the imitation optimiser takes no step (its Adam count
+    stays at the stage's), the memory keeps the expert's labels of every visited state, and the DDPG actor
+    step carries the anchor: a large weight keeps the actor at the expert, a tiny one lets DDPG move it
+    (the expert's ``−2x`` is not the fastest way to ``x = 0``)."""
+    env = Drift()
+    cfg = BASE.replace(pretrain_steps=BASE.total_steps // 2, imitation_anchor="loss")
+    errors = {}
+    for weight in (1e-6, 10.0):
+        c = cfg.replace(imitation_weight=weight)
+        trainer = make_trainer(c, env, iterations_per_update=c.iterations // 4)
+        state = jax.jit(trainer.init)(jax.random.PRNGKey(1))
+        update = jax.jit(trainer.update)
+        losses, counts = [], []
+        for _ in range(trainer.num_updates):
+            state, metrics = update(state)
+            losses.append(float(metrics["imitation_loss"]))
+            counts.append(int(state.imitation_opt[0].count))
+        stage = c.pretrain_iterations * c.imitation_updates
+        assert np.isfinite(losses[:2]).all() and np.isnan(losses[2:]).all()
+        assert counts == [stage // 2, stage, stage, stage]
+        assert int(state.demos.size) == c.total_steps  # labels of every step, in and after the stage
+        errors[weight] = _grid_error(c, state, env)
+    assert errors[10.0] < 0.005 and errors[10.0] < 0.5 * errors[1e-6], errors

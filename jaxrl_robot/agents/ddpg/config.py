@@ -10,11 +10,12 @@ from jaxrl_robot.agents.ddpg.networks import OUTPUTS
 from jaxrl_robot.replay.her import STRATEGIES
 from jaxrl_robot.replay.prioritized import TREES as PER_TREES
 
-__all__ = ["NOISES", "PRETRAINS", "SCHEDULES", "DDPGConfig"]
+__all__ = ["ANCHORS", "NOISES", "PRETRAINS", "SCHEDULES", "DDPGConfig"]
 
 SCHEDULES = ("episodes", "steps")
 NOISES = ("gaussian", "ou")
 PRETRAINS = ("none", "imitation")
+ANCHORS = ("steps", "loss")
 
 
 @dataclass(frozen=True)
@@ -188,7 +189,14 @@ class DDPGConfig:
     """'imitation': after the stage, the actor keeps taking its imitation updates on the expert's labels
     of the visited states, with the step size scaled by this weight, between its DDPG updates (a
     behaviour-cloning anchor in the manner of DDPG from demonstrations, Nair et al. 2018); 0: plain
-    DDPG/TD3 fine-tuning, as in the thesis."""
+    DDPG/TD3 fine-tuning, as in the thesis.  ``imitation_anchor`` says how the weight enters."""
+    imitation_anchor: str = "steps"
+    """'imitation' with ``imitation_weight`` > 0: 'steps' — after the stage the imitation updates go on
+    between the DDPG updates, their step size scaled by the weight; 'loss' — the imitation updates stop
+    with the stage and the actor's DDPG loss takes the anchor instead,
+    ``−mean Q1(s, μ(s)) / mean |Q1| + imitation_weight · mean ‖μ(s_d) − a*_d‖²`` on a mini-batch of
+    ``imitation_batch`` pairs from the memory per actor step (TD3+BC's objective, Fujimoto & Gu 2021;
+    :func:`~jaxrl_robot.agents.ddpg.losses.anchored_actor_loss`), one Adam step at ``actor_lr``."""
     expert_share: float = 0.0
     """'imitation': probability that a lane's step executes the expert's action instead of the
     actor's at the start of the stage, falling linearly to 0 at its end (DAgger's β); 0: the actor
@@ -230,6 +238,7 @@ class DDPGConfig:
         """Raise ``ConfigError`` naming the first invalid field; return self."""
         check_choice("schedule", self.schedule, SCHEDULES)
         check_choice("pretrain", self.pretrain, PRETRAINS)
+        check_choice("imitation_anchor", self.imitation_anchor, ANCHORS)
         for name in ("epochs", "cycles_per_epoch", "updates_per_cycle", "total_steps", "unroll_length",
                      "updates_per_iteration", "num_envs", "batch_size", "buffer_size"):
             check_range(name, getattr(self, name), 1)

@@ -13,9 +13,12 @@ For the first ``config.pretrain_iterations`` iterations of a run:
   networks following the imitating actor (``Learner.learn(..., actor_on=False)``).
 
 Then the run continues as plain DDPG or TD3 from those weights; with ``imitation_weight`` > 0 the
-actor also keeps its imitation updates on the expert's labels of the states it visits, their
-Adam steps scaled by that weight (a behaviour-cloning anchor between the DDPG updates).  The memory and the imitation
-optimiser are part of the training state, so a resumed run continues exactly.
+expert goes on labelling the visited states and the actor stays anchored to its labels: with
+``imitation_anchor='steps'`` it keeps its imitation updates, their Adam steps scaled by that weight
+(a behaviour-cloning anchor between the DDPG updates); with ``'loss'`` the updates stop and the
+DDPG actor loss takes a behaviour-cloning term on the memory instead (:attr:`Imitation.anchor`,
+TD3+BC's objective).  The memory and the imitation optimiser are part of the training state, so a
+resumed run continues exactly.
 """
 
 from __future__ import annotations
@@ -61,7 +64,11 @@ class Imitation(NamedTuple):
       learn: ``(key, actor params, optimiser state, memory, obs stats, obs [R], labels [R], iteration [])
         -> (actor params, optimiser state, memory, loss [])``: in the stage (or after it, with
         ``imitation_weight`` > 0, the steps scaled by it) stores the pairs and takes the actor's
-        imitation updates; otherwise changes nothing (NaN loss).
+        imitation updates; after the stage with ``imitation_anchor='loss'`` only stores the pairs;
+        otherwise changes nothing (NaN loss when no update was taken).
+      anchor: with ``imitation_anchor='loss'`` and ``imitation_weight`` > 0, ``(key, actor params, obs
+        stats, memory) -> []``: the imitation loss of the actor on a mini-batch of ``imitation_batch``
+        pairs drawn from the memory with ``key``, the term the DDPG actor loss adds (else None).
     """
 
     iterations: int
@@ -69,6 +76,7 @@ class Imitation(NamedTuple):
     active: Callable[[jax.Array], jax.Array]
     teacher: Callable[[jax.Array, jax.Array], Teacher]
     learn: Callable[..., tuple[Any, Any, Any, jax.Array]]
+    anchor: Callable[..., jax.Array] | None = None
 
 
 def make_imitation(
@@ -114,22 +122,25 @@ def make_imitation(
 
         return run
 
+    def demo_loss(key: jax.Array, params: Any, stats: RunningStats, buf: Any) -> jax.Array:
+        """The actor's imitation loss on ``imitation_batch`` pairs drawn from ``buf`` with ``key``."""
+        batch = memory.sample(key, buf).experience
+        mean = actor.apply(params, norm(stats, batch.obs))
+        ones = jnp.ones(batch.obs.shape[:1], jnp.float32)
+        return imitation_loss(mean, batch.action, ones, jnp.asarray(ones.shape[0], jnp.float32))
+
     def update(stats: RunningStats, scale: jax.Array, carry: tuple, key: jax.Array) -> tuple[tuple, jax.Array]:
         params, opt, buf = carry
-        batch = memory.sample(key, buf).experience
-
-        def loss_fn(p):
-            mean = actor.apply(p, norm(stats, batch.obs))
-            ones = jnp.ones(batch.obs.shape[:1], jnp.float32)
-            return imitation_loss(mean, batch.action, ones, jnp.asarray(ones.shape[0], jnp.float32))
-
-        loss, grads = jax.value_and_grad(loss_fn)(params)
+        loss, grads = jax.value_and_grad(lambda p: demo_loss(key, p, stats, buf))(params)
         updates, opt = tx.update(grads, opt, params)
         updates = jax.tree.map(lambda u: scale * u, updates)
         return (optax.apply_updates(params, updates), opt, buf), loss
 
+    in_loss = config.imitation_anchor == "loss" and config.imitation_weight > 0
+
     def learn(key, params, opt, buf, stats, obs, labels, iteration):
         scale = jnp.where(active(iteration), 1.0, config.imitation_weight).astype(jnp.float32)
+        nan = jnp.full((), jnp.nan, jnp.float32)
 
         def run(args):
             params, opt, buf = args
@@ -138,7 +149,15 @@ def make_imitation(
             (params, opt, buf), loss = jax.lax.scan(lambda c, k: update(stats, scale, c, k), (params, opt, buf), keys)
             return params, opt, buf, jnp.mean(loss)
 
-        skip = (params, opt, buf, jnp.full((), jnp.nan, jnp.float32))
-        return jax.lax.cond(labelling(iteration), run, lambda args: skip, (params, opt, buf))
+        def store(args):
+            """After the stage with the anchor in the DDPG loss: the pairs only."""
+            params, opt, buf = args
+            return params, opt, memory.add(buf, Demo(obs, labels)), nan
 
-    return Imitation(iterations=iterations, init=init, active=active, teacher=teacher, learn=learn)
+        def labelled(args):
+            return jax.lax.cond(active(iteration), run, store, args) if in_loss else run(args)
+
+        return jax.lax.cond(labelling(iteration), labelled, lambda args: (*args, nan), (params, opt, buf))
+
+    return Imitation(iterations=iterations, init=init, active=active, teacher=teacher, learn=learn,
+                     anchor=demo_loss if in_loss else None)  # fmt: skip

@@ -42,6 +42,7 @@ from jaxrl_robot.agents.common import make_optimizer
 from jaxrl_robot.agents.ddpg.config import DDPGConfig
 from jaxrl_robot.agents.ddpg.losses import (
     actor_loss,
+    anchored_actor_loss,
     clipped_double_q,
     critic_loss,
     smooth_target_action,
@@ -106,10 +107,13 @@ class Learner(NamedTuple):
     """The update of one DDPG configuration.
 
     Attributes:
-      learn: ``(state, key, n, workers, actor_on=None) -> (state, metric sums, count)``: ``n``
-        updates if the replay holds enough transitions (else none; ``count`` is ``n`` or 0).
+      learn: ``(state, key, n, workers, actor_on=None, anchor=None) -> (state, metric sums, count)``:
+        ``n`` updates if the replay holds enough transitions (else none; ``count`` is ``n`` or 0).
         ``state`` has the fields of ``DDPGState``.  ``actor_on`` (``[] bool``): False keeps the
         actor as it is while the critic learns and the targets follow (the imitation stage).
+        ``anchor``: ``(key, actor params) -> []``, a behaviour-cloning loss that the actor loss
+        takes with ``config.imitation_weight`` (:func:`~jaxrl_robot.agents.ddpg.losses.anchored_actor_loss`;
+        the reported ``actor_loss`` includes it).
       priorities: ``(actor params, critic params, stats, rows [N]) -> [N]``: the priority
         ``min(|δ|, priority_clip)`` of raw rows under one network copy, with
         ``δ = y − Q(s, a)`` and ``y = r + γ (1 − d) Q(s', μ(s'))`` from that copy alone (a
@@ -181,11 +185,12 @@ def make_learner(
         return priority_error(td if config.twin_critics else td[0])
 
     def learn_step(
-        stats: RunningStats, workers: Workers, actor_on: jax.Array | None, carry: tuple, xs: tuple
+        stats: RunningStats, workers: Workers, actor_on: jax.Array | None, anchor: Callable | None, carry: tuple,
+        xs: tuple,
     ) -> tuple[tuple, dict]:
         """One update; ``xs = (key, index)`` with ``index`` the run's count of updates before this one
         (the actor and targets move when ``(index + 1) % policy_delay == 0``; where ``actor_on`` is
-        False only the targets move)."""
+        False only the targets move; ``anchor`` as in :class:`Learner`)."""
         key, index = xs
         actor_p, critic_p, t_actor, t_critic, a_opt, c_opt, buf = carry
         k_sample, k_smooth = jax.random.split(key) if config.target_noise > 0 else (key, key)
@@ -206,7 +211,9 @@ def make_learner(
 
         def a_loss(p, obs):
             q = q_first(critic_p, obs, actor.apply(p, obs))
-            return actor_loss(q), q
+            if anchor is None:
+                return actor_loss(q), q
+            return anchored_actor_loss(q, anchor(jax.random.fold_in(key, 1), p), config.imitation_weight), q
 
         def actor_step(args: tuple) -> tuple[tuple, jax.Array, jax.Array]:
             """Actor step on ``−mean Q1(s, μ(s))`` and soft target updates."""
@@ -248,14 +255,15 @@ def make_learner(
         return (actor_p, critic_p, t_actor, t_critic, a_opt, c_opt, buf), out
 
     def learn(
-        state: Any, key: jax.Array, n: int, workers: Workers, actor_on: jax.Array | None = None
+        state: Any, key: jax.Array, n: int, workers: Workers, actor_on: jax.Array | None = None,
+        anchor: Callable | None = None,
     ) -> tuple[Any, dict[str, jax.Array], jax.Array]:
         carry = (state.actor_params, state.critic_params, state.target_actor_params, state.target_critic_params,
                  state.actor_opt, state.critic_opt, state.replay)
 
         def run(c):
             xs = (jax.random.split(key, n), state.updates + jnp.arange(n, dtype=jnp.int32))
-            c, out = jax.lax.scan(lambda c_, x: learn_step(state.obs_stats, workers, actor_on, c_, x), c, xs)
+            c, out = jax.lax.scan(lambda c_, x: learn_step(state.obs_stats, workers, actor_on, anchor, c_, x), c, xs)
             return c, jax.tree.map(jnp.sum, out), jnp.asarray(n, jnp.float32)
 
         def skip(c):

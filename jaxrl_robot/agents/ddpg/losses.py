@@ -15,6 +15,7 @@ import optax
 
 __all__ = [
     "actor_loss",
+    "anchored_actor_loss",
     "clipped_double_q",
     "critic_loss",
     "linear_noise_factor",
@@ -87,6 +88,18 @@ def actor_loss(q_of_policy: jax.Array) -> jax.Array:
     """Eq. 3.6 as a loss: ``−mean_i Q(s_i, μ(s_i))``; its gradient is ``−∇_a Q ∇_θ μ`` averaged."""
     chex.assert_rank(q_of_policy, 1)
     return -jnp.mean(q_of_policy)
+
+
+def anchored_actor_loss(q_of_policy: jax.Array, imitation: jax.Array, weight: float) -> jax.Array:
+    """The actor's loss with a behaviour-cloning term, Q normalised as in TD3+BC (Fujimoto & Gu, 2021):
+    ``−mean_i Q_i / mean_i |Q_i| + weight · imitation``, the scale ``mean |Q|`` held constant (no
+    gradient) and kept ≥ 1e-6, so that the Q term's gradient does not grow with the size of the
+    returns.  ``q_of_policy [N]``, ``imitation []`` (e.g. :func:`jaxrl_robot.imitation.imitation_loss`
+    of the actor on the expert's pairs) -> ``[]``.  TD3+BC's α = 2.5 with a squared error averaged over
+    the ``A`` action dimensions is ``weight = 1 / (2.5 A)`` here, the imitation loss being a sum over them."""
+    chex.assert_rank(q_of_policy, 1)
+    scale = jax.lax.stop_gradient(jnp.maximum(jnp.mean(jnp.abs(q_of_policy)), 1e-6))
+    return actor_loss(q_of_policy) / scale + weight * imitation
 
 
 def soft_update(target: Any, online: Any, tau: float) -> Any:
