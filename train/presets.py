@@ -609,11 +609,13 @@ def _racing_preset() -> tuple[DDPGConfig, dict]:
     ``cpu`` (16 lanes) and ``fast`` (1 024 lanes) imitate for half the run on larger mini-batches,
     then fine-tune with the actor anchored to the expert's labels (``imitation_weight``); their
     env is :data:`RACING_ENV` (:func:`ddpg_env_overrides`).  ``fast`` keeps the latest 10^6 pairs,
-    imitates at lr 3e-4 and anchors with weight 10: one H200, 3 seeds, 20 laps per road, successes on
-    train / test1 / test2 / test3 — imitation alone 19.3 / 20 / 17.0 / 20 (100 000 pairs at lr 1e-3:
-    15.3 / 19.3 / 16.0 / 19.0, H100, the earlier expert); TD3 17.7 / 19.3 / 15.3 / 19.7 and DDPG 17.3 /
-    19.0 / 18.0 / 20.0 at weight 10, 17.0 / 19.0 / 16.0 / 18.3 and 14.7 / 14.0 / 13.0 / 17.7 at weight 3
-    (``gpu-nvidia_h200-racing-imit1M-*.md``).
+    imitates at lr 3e-4, then puts the anchor in the actor's loss with weight 1 (``imitation_anchor='loss'``,
+    TD3+BC's objective).  3 seeds, 20 laps per road, successes on train / test1 / test2 / test3:
+    imitation alone 19.3 / 20 / 17.0 / 20 (H200); the anchor in the loss (H100) — TD3 19.3 / 19.7 /
+    19.7 / 19.7 and DDPG 19.3 / 19.7 / 19.7 / 19.3 at weight 1 (``*racing-bcloss1-*.md``), TD3 19.3 /
+    19.3 / 19.0 / 18.3 at 0.5 and 19.3 / 20 / 16.7 / 18.7 at 0.3; the anchor as separate imitation steps
+    (H200) — TD3 17.7 / 19.3 / 15.3 / 19.7 and DDPG 17.3 / 19.0 / 18.0 / 20.0 at weight 10
+    (``*racing-imit1M-*.md``).
     """
     base = DDPGConfig(
         schedule="steps", total_steps=100_000, num_envs=1, unroll_length=1, updates_per_iteration=1,
@@ -630,7 +632,7 @@ def _racing_preset() -> tuple[DDPGConfig, dict]:
         "fast": dict(num_envs=1024, unroll_length=4, updates_per_iteration=32, batch_size=1024, normalize_obs=True,
                      buffer_size=1_000_000, tau=0.005, total_steps=24_000_000, pretrain_steps=6_000_000,
                      imitation_batch=1024, imitation_updates=32, imitation_buffer=1_000_000, imitation_lr=3e-4,
-                     imitation_weight=10.0, learning_starts=10_000, noise_end_factor=0.2),
+                     imitation_weight=1.0, imitation_anchor="loss", learning_starts=10_000, noise_end_factor=0.2),
     }
     return base, presets
 

@@ -7,6 +7,7 @@ from jaxrl_robot.agents.ddpg.distributed import Collectors, DistributedDDPGState
 from jaxrl_robot.agents.ddpg.learner import SINGLE, Workers, make_networks, make_optimizer, worker_shards
 from jaxrl_robot.agents.ddpg.losses import (
     actor_loss,
+    anchored_actor_loss,
     clipped_double_q,
     critic_loss,
     linear_noise_factor,
@@ -32,6 +33,7 @@ __all__ = [
     "DistributedDDPGState",
     "Workers",
     "actor_loss",
+    "anchored_actor_loss",
     "clipped_double_q",
     "critic_loss",
     "linear_noise_factor",
