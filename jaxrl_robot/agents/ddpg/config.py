@@ -186,10 +186,10 @@ class DDPGConfig:
     imitation_buffer: int = 100_000
     """'imitation': pairs kept (the latest), sampled uniformly for the actor's updates."""
     imitation_weight: float = 0.0
-    """'imitation': after the stage, the actor keeps taking its imitation updates on the expert's labels
-    of the visited states, with the step size scaled by this weight, between its DDPG updates (a
-    behaviour-cloning anchor in the manner of DDPG from demonstrations, Nair et al. 2018); 0: plain
-    DDPG/TD3 fine-tuning, as in the thesis.  ``imitation_anchor`` says how the weight enters."""
+    """'imitation': after the stage, the actor stays anchored to the expert's labels of the visited
+    states with this weight (a behaviour-cloning anchor in the manner of DDPG from demonstrations,
+    Nair et al. 2018), as separate imitation steps or as a term of its loss (``imitation_anchor``);
+    0: plain DDPG/TD3 fine-tuning, as in the thesis."""
     imitation_anchor: str = "steps"
     """'imitation' with ``imitation_weight`` > 0: 'steps' — after the stage the imitation updates go on
     between the DDPG updates, their step size scaled by the weight; 'loss' — the imitation updates stop
