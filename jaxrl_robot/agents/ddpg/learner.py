@@ -216,7 +216,7 @@ def make_learner(
             return anchored_actor_loss(q, anchor(jax.random.fold_in(key, 1), p), config.imitation_weight), q
 
         def actor_step(args: tuple) -> tuple[tuple, jax.Array, jax.Array]:
-            """Actor step on ``−mean Q1(s, μ(s))`` and soft target updates."""
+            """Actor step on ``−mean Q1(s, μ(s))`` (with the anchor, where given) and soft target updates."""
             actor_p, t_actor, t_critic, a_opt = args
             (aloss, q), grads = jax.value_and_grad(a_loss, has_aux=True)(actor_p, tr.obs)
             aloss, grads = workers.mean((aloss, grads))

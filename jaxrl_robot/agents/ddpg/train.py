@@ -100,8 +100,7 @@ def make_trainer(
         actor_on = None if imitating is None else ~imitating
         anchor = None
         if imitation is not None and imitation.anchor is not None:  # the BC term in the actor loss (TD3+BC)
-            stats, demos = state.obs_stats, state.demos
-            anchor = lambda k, p: imitation.anchor(k, p, stats, demos)  # noqa: E731
+            anchor = functools.partial(imitation.anchor, stats=state.obs_stats, buf=state.demos)
         state, sums, count = s.learner.learn(state, k_learn, s.updates_per_iteration, SINGLE, actor_on, anchor)
         state = state.replace(key=key, iteration=state.iteration + 1)
         return state, (sums, count, got.sums, extra)
