@@ -613,7 +613,10 @@ def _racing_preset() -> tuple[DDPGConfig, dict]:
     TD3+BC's objective).  3 seeds, 20 laps per road, successes on train / test1 / test2 / test3:
     imitation alone 19.3 / 20 / 17.0 / 20 (H200); the anchor in the loss (H100) — TD3 19.3 / 19.7 /
     19.7 / 19.7 and DDPG 19.3 / 19.7 / 19.7 / 19.3 at weight 1 (``*racing-bcloss1-*.md``), TD3 19.3 /
-    19.3 / 19.0 / 18.3 at 0.5 and 19.3 / 20 / 16.7 / 18.7 at 0.3; the anchor as separate imitation steps
+    19.3 / 19.0 / 18.3 at 0.5 and 19.3 / 20 / 16.7 / 18.7 at 0.3; at weight 2 TD3 19.7 / 20 / 18.7 / 20
+    and DDPG 20 / 19.7 / 19.0 / 19.7 (a seed of each under 19 on test2), at 3 TD3 19.7 / 19.3 / 19.3 / 20
+    (one seed 18). Weight 1 is the one where every seed of both reaches 19. No weight makes TD3 faster
+    than DDPG (README, "Racing"); the anchor as separate imitation steps
     (H200) — TD3 17.7 / 19.3 / 15.3 / 19.7 and DDPG 17.3 / 19.0 / 18.0 / 20.0 at weight 10
     (``*racing-imit1M-*.md``).
     """
