@@ -31,10 +31,16 @@ program called per seed (``--seed-map vmap``: one vmapped program), brax's one a
   :func:`jaxrl_robot.evaluation.two_policies`). Mean ± std over seeds; the goal compares returns of the
   same mode.
 * **wall**: from the call to the trained parameters, compilation included (per seed: the seeds' total
-  over their number); brax's includes the 10 evaluations its ``ppo.train`` runs along the way
-  (128 episodes each), ours its evaluations at the same points (:func:`eval_points`, twice the episodes:
-  both modes); **env steps/s**:
-  env steps of all seeds over that wall time.
+  over their number); brax's includes the ``--evals`` evaluations (10 unless given) its trainer runs
+  along the way (128 episodes each), ours its evaluations at the same points (:func:`eval_points`, twice
+  the episodes: both modes); **env steps/s**: env steps of all seeds over that wall time. On a short
+  off-policy budget the evaluations can take most of the wall: ``--evals 3`` evaluates before training,
+  half-way and at the end.
+
+Each side's record is written as it grows (ours with ``--seed-map vmap``: after every evaluation; seeds
+one after another: after every evaluation of the first seed, then after every seed), so a run cut short
+(a time limit) leaves its evaluations so far, shown as ``cut at N steps`` and not compared with the other
+side.
 
 Goals: per task our return ≥ brax's and our wall per seed ≤ brax's. Results:
 ``benchmarks/results/<device>-brax_tasks[-<algo>].json`` and ``.md`` with one learning-curve figure per task.
@@ -138,18 +144,24 @@ def eval_points(num_updates: int, evals: int = 10) -> list[int]:
 
 def ours(env: Any, task: str, row: dict[str, float], steps: int, seeds: int, eval_episodes: int,
          seed_map: str = "loop", algo: str = "ppo", mode: str = "stochastic",
-         overrides: dict[str, Any] | None = None) -> dict[str, Any]:  # fmt: skip
+         overrides: dict[str, Any] | None = None, evals: int = 10,
+         done: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:  # fmt: skip
     """Train our ``algo`` on ``seeds`` keys, one vmapped program (``seed_map='vmap'``) or one compiled
-    program called per key (``'loop'``), evaluating at the :func:`eval_points` (as brax does) in ``mode``
-    where the trainer can sample, and with the mean action; returns, evaluation curves, training-episode
-    curves and wall time (compilation and the evaluations included, as brax's)."""
+    program called per key (``'loop'``), evaluating at the ``evals`` :func:`eval_points` (as brax does) in
+    ``mode`` where the trainer can sample, and with the mean action; returns, evaluation curves,
+    training-episode curves and wall time (compilation and the evaluations included, as brax's).
+
+    ``done`` is called with the record so far after each evaluation that adds to it (a run cut short
+    keeps it): every seed's evaluations so far with ``vmap``; with ``loop`` the seeds finished, or, before
+    the first one finishes, its evaluations so far. A record of a run not yet at its end has ``cut``."""
     repeat = int(row.get("action_repeat", 1))  # each decision held for `repeat` env steps, as brax's wrapper does
     if repeat > 1:
         env = ActionRepeatWrapper(env, repeat)
         row = {**row, "episode_length": int(row["episode_length"]) // repeat}
     trainer, episode_length = our_trainer(algo, task, env, row, steps // repeat, overrides)
     sampled = mode == "stochastic" and trainer.sample_policy is not None
-    points = eval_points(trainer.num_updates)
+    points = eval_points(trainer.num_updates, evals)
+    per_update = trainer.env_steps_per_update * repeat  # env steps, as brax counts them
 
     def segment(state: Any, buf: jax.Array, start: jax.Array, n: jax.Array) -> tuple[Any, jax.Array]:
         """``n`` updates from update ``start`` on, each chunk's training-episode return (and the acting
@@ -173,20 +185,42 @@ def ours(env: Any, task: str, row: dict[str, float], steps: int, seeds: int, eva
         r = run_test_episodes(key, env, both, 2 * eval_episodes, episode_length)["return"]
         return jnp.mean(r[:eval_episodes]), jnp.mean(r[eval_episodes:])
 
-    def run(init_fn: Callable, seg_fn: Callable, test_fn: Callable, keys: jax.Array, eval_keys: jax.Array):
-        """Train from ``keys`` (one seed, or ``[S]`` with the vmapped functions) with an evaluation at every point."""
+    def record(curves: np.ndarray, curves_mean: np.ndarray, per_chunk: np.ndarray, updates: int) -> dict[str, Any]:
+        """The side's record of ``curves`` / ``curves_mean`` ``[S, E]`` (the first E evaluations) and the
+        per-update returns and σ ``per_chunk [S, 2, U]`` after ``updates`` updates."""
+        wall, n = time.perf_counter() - t0, curves.shape[0]
+        trained = per_update * (np.arange(updates) + 1)
+        return {"returns": curves[:, -1].tolist(), "eval_mode": "stochastic" if sampled else "deterministic",
+                "returns_deterministic": curves_mean[:, -1].tolist(),
+                "wall_s": wall, "wall_per_seed_s": wall / n, "seed_map": seed_map,
+                "env_steps": per_update * updates, "env_steps_per_s": n * per_update * updates / wall,
+                "curve_kind": "evaluation", "curve_steps": [per_update * p for p in points[: curves.shape[1]]],
+                "curves": curves.tolist(), "curves_deterministic": curves_mean.tolist(),
+                "training_curve_steps": trained.tolist(), "training_curves": per_chunk[:, 0, :updates].tolist(),
+                "training_policy_std": per_chunk[:, 1, :updates].tolist(), "overrides": dict(overrides or {}),
+                **({"cut": True} if updates < trainer.num_updates else {})}  # fmt: skip
+
+    def report(curves: np.ndarray, curves_mean: np.ndarray, per_chunk: np.ndarray, updates: int) -> None:
+        if done is not None:
+            done(record(curves, curves_mean, per_chunk, updates))
+
+    def run(init_fn: Callable, seg_fn: Callable, test_fn: Callable, keys: jax.Array, eval_keys: jax.Array,
+            on_eval: Callable) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+        """Train from ``keys`` (one seed, or ``[S]`` with the vmapped functions) with an evaluation at every
+        point, each followed by ``on_eval(curve, curve_mean, per_chunk, updates)`` of the run so far."""
         state = init_fn(keys)
         buf = jnp.full(keys.shape[:-1] + (2, trainer.num_updates), jnp.nan, jnp.float32)
-        curve, curve_mean, done = [], [], 0
+        curve, curve_mean, trained = [], [], 0
         for p in points:
-            if p > done:
-                state, buf = seg_fn(state, buf, done, p - done)
-                done = p
+            if p > trained:
+                state, buf = seg_fn(state, buf, trained, p - trained)
+                trained = p
             r, m = jax.block_until_ready(test_fn(state, eval_keys))
-            print(f"  ours {algo}: {p * trainer.env_steps_per_update * repeat:,} env steps, eval return "
+            print(f"  ours {algo}: {p * per_update:,} env steps, eval return "
                   f"{np.round(np.asarray(r), 1).tolist()}, {time.perf_counter() - t0:.0f} s", flush=True)
             curve.append(np.asarray(r))
             curve_mean.append(np.asarray(m))
+            on_eval(np.stack(curve, -1), np.stack(curve_mean, -1), np.asarray(buf), p)
         return np.stack(curve, -1), np.stack(curve_mean, -1), np.asarray(buf)
 
     keys, eval_keys = jax.random.split(jax.random.PRNGKey(0), seeds), jax.random.split(jax.random.PRNGKey(1), seeds)
@@ -194,39 +228,48 @@ def ours(env: Any, task: str, row: dict[str, float], steps: int, seeds: int, eva
     if seed_map == "vmap":
         curves, curves_mean, per_chunk = run(jax.jit(jax.vmap(trainer.init)),
                                              jax.jit(jax.vmap(segment, in_axes=(0, 0, None, None))),
-                                             jax.jit(jax.vmap(test)), keys, eval_keys)  # fmt: skip
+                                             jax.jit(jax.vmap(test)), keys, eval_keys, report)  # fmt: skip
     else:
         init_one, seg_one, test_one = jax.jit(trainer.init), jax.jit(segment), jax.jit(test)
-        runs = [run(init_one, seg_one, test_one, k, ek) for k, ek in zip(keys, eval_keys, strict=True)]
+        runs: list[tuple[np.ndarray, ...]] = []
+
+        def first_seed(c: np.ndarray, cm: np.ndarray, b: np.ndarray, p: int) -> None:
+            if not runs and p < trainer.num_updates:  # the first seed's evaluations so far
+                report(c[None], cm[None], b[None], p)
+
+        for k, ek in zip(keys, eval_keys, strict=True):
+            runs.append(run(init_one, seg_one, test_one, k, ek, first_seed))
+            report(*(np.stack([r[i] for r in runs]) for i in range(3)), trainer.num_updates)
         curves, curves_mean, per_chunk = (np.stack([r[i] for r in runs]) for i in range(3))
-    wall = time.perf_counter() - t0
-    per_update = trainer.env_steps_per_update * repeat  # env steps, as brax counts them
-    done = per_update * (np.arange(trainer.num_updates) + 1)
-    return {"returns": curves[:, -1].tolist(), "eval_mode": "stochastic" if sampled else "deterministic",
-            "returns_deterministic": curves_mean[:, -1].tolist(),
-            "wall_s": wall, "wall_per_seed_s": wall / seeds, "seed_map": seed_map,
-            "env_steps": int(done[-1]), "env_steps_per_s": seeds * done[-1] / wall,
-            "curve_kind": "evaluation", "curve_steps": [per_update * p for p in points], "curves": curves.tolist(),
-            "curves_deterministic": curves_mean.tolist(),
-            "training_curve_steps": done.tolist(), "training_curves": per_chunk[:, 0].tolist(),
-            "training_policy_std": per_chunk[:, 1].tolist(),
-            "overrides": dict(overrides or {})}  # fmt: skip
+    return record(curves, curves_mean, per_chunk, trainer.num_updates)
 
 
 def theirs(env: Any, row: dict[str, float], steps: int, seeds: int, peer: str = "ppo",
            done: Callable[[dict[str, Any]], None] | None = None,
-           mode: str = "stochastic", first_seed: int = 0) -> dict[str, Any]:  # fmt: skip
-    """brax's ``ppo.train`` (``peer='sac'``: ``sac.train``) with the task's ``row`` (brax's terms), seeds
-    ``first_seed … first_seed + seeds − 1`` one after another, evaluated in ``mode``; ``done`` is called with
-    the record of the seeds so far after each one."""
+           mode: str = "stochastic", first_seed: int = 0, evals: int = 10) -> dict[str, Any]:  # fmt: skip
+    """brax's ``ppo.train`` (``peer='sac'``: ``sac.train``) with the task's ``row`` (brax's terms) and
+    ``evals`` evaluations, seeds ``first_seed … first_seed + seeds − 1`` one after another, evaluated in
+    ``mode``; ``done`` is called with the record of the seeds so far after each one, and before the first
+    one finishes, after each of its evaluations with that seed's so far (``cut``: a run cut short keeps it)."""
     from benchmarks.peers.brax_ppo import train_published
 
-    runs = []
-    for seed in range(first_seed, first_seed + seeds):
-        runs.append(train_published(env, row, steps, seed, peer, deterministic_eval=mode == "deterministic"))
-        record = {**summary(runs), "eval_mode": mode, "seed_ids": list(range(first_seed, seed + 1))}
+    runs: list[dict[str, Any]] = []
+
+    def report(shown: list[dict[str, Any]], cut: bool = False) -> dict[str, Any]:
+        record = {**summary(shown), "eval_mode": mode, "seed_ids": list(range(first_seed, first_seed + len(shown))),
+                  **({"cut": True} if cut else {})}  # fmt: skip
         if done is not None:
             done(record)
+        return record
+
+    def so_far(partial: dict[str, Any]) -> None:
+        if not runs:
+            report([partial], cut=True)
+
+    for seed in range(first_seed, first_seed + seeds):
+        runs.append(train_published(env, row, steps, seed, peer, deterministic_eval=mode == "deterministic",
+                                    num_evals=evals, on_eval=so_far))  # fmt: skip
+        record = report(runs)
     return record
 
 
@@ -260,12 +303,15 @@ def to_markdown(result: dict[str, Any]) -> str:
         mode = eval_mode(b, "brax")
         same, mean = our_returns(o, mode), our_returns(o, "deterministic")
         rb, ro = np.mean(b["returns"]), np.mean(same) if same else float("nan")
-        won, fast = ro >= rb, o["wall_per_seed_s"] <= b["wall_per_seed_s"]
+        whole = not (b.get("cut") or o.get("cut"))  # a side cut short is not compared
+        won, fast = whole and ro >= rb, whole and o["wall_per_seed_s"] <= b["wall_per_seed_s"]
         cell = f"{ro:.1f} ± {np.std(same):.1f}" if same else "not measured"
+        cell += f" (cut at {o['env_steps']:,} steps)" if o.get("cut") else ""
         mean_cell = f"{np.mean(mean):.1f} ± {np.std(mean):.1f}" if mean else "not measured"
         wall = f"{o['wall_per_seed_s']:.0f}"
         short = len(b["returns"]) < result["brax_seeds"] and not np.isnan(rb)  # a killed run: the seeds it finished
         seeds_done = f" ({len(b['returns'])} of {result['brax_seeds']} seeds)" if short else ""
+        seeds_done += f" (cut at {b['env_steps']:,} steps)" if b.get("cut") else ""
         mode_word = "" if np.isnan(rb) else f" ({words[mode]})"
         out.append(f"| {t['task']} | {o['env_steps']:,} | {rb:.1f} ± {np.std(b['returns']):.1f}{mode_word}"
                    f"{seeds_done} | {'**' + cell + '**' if won else cell} | {mean_cell} "
@@ -313,6 +359,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--steps", type=int, default=0, help="env steps per seed (0: brax's budget of the task)")
     p.add_argument("--backend", default="mjx", help="brax physics backend (mjx, generalized, positional, spring)")
     p.add_argument("--eval-episodes", type=int, default=128)
+    p.add_argument("--evals", type=int, default=10,
+                   help="evaluations of each side along training, the first before it (brax's num_evals; at "
+                   "least 2); fewer cost less where they take much of a short run")  # fmt: skip
     p.add_argument("--eval-mode", default="stochastic", choices=EVAL_MODES,
                    help="final evaluation of both sides: sampled actions (brax's default) or the mean action; "
                    "ours is also evaluated with its mean action either way")  # fmt: skip
@@ -339,6 +388,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         return merge(args.merge, args.out, argv, args.label, args.note)
     if args.no_brax and args.no_ours:
         p.error("--no-brax and --no-ours: nothing would run; give at most one")
+    if args.evals < 2:
+        p.error(f"--evals {args.evals}: at least 2 (one before training, one at its end)")
     table = ALGOS[args.algo][2]
     args.tasks = args.tasks or list(table)
     unknown = [t for t in args.tasks if t not in table]
@@ -359,19 +410,24 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     result = {"benchmark": "brax_tasks", "algo": args.algo, "provenance": prov, "device": device_label(),
               "backend": args.backend, **({"note": args.note} if args.note else {}),
               "seeds": args.seeds, "seed_map": args.seed_map, "brax_seeds": brax_seeds,
-              "eval_episodes": args.eval_episodes,
+              "eval_episodes": args.eval_episodes, "evals": args.evals,
               "figures": stem + "-figures", "tasks": []}  # fmt: skip
     os.makedirs(result["figures"], exist_ok=True)
     for task in args.tasks:
         env = brax_envs.get_environment(task, backend=args.backend)
         steps = args.steps or int(table[task]["num_timesteps"])
         settings = {**brax_row(task, args.num_envs, args.algo), **pairs(args.row)}
-        our_steps = brax_ppo_steps(settings, steps) if args.algo == "ppo" else steps  # brax's count: equal steps
+        our_steps = brax_ppo_steps(settings, steps, args.evals) if args.algo == "ppo" else steps  # brax's count
         row = {"task": task, "settings": settings, "sides": []}
         result["tasks"].append(row)
         if not args.no_ours:
+
+            def ours_so_far(record: dict[str, Any], row: dict[str, Any] = row) -> None:  # a killed run keeps it
+                row["ours"] = record
+                write(stem, result)
+
             row["ours"] = ours(env, task, settings, our_steps, args.seeds, args.eval_episodes, args.seed_map,
-                               args.algo, args.eval_mode, overrides)  # fmt: skip
+                               args.algo, args.eval_mode, overrides, args.evals, ours_so_far)  # fmt: skip
             row["sides"].append("ours")
             print(task, "ours", [round(r, 1) for r in row["ours"]["returns"]], f"{row['ours']['wall_s']:.0f} s",
                   flush=True)  # fmt: skip
@@ -383,7 +439,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                 write(stem, result)
 
             theirs(env, settings, steps, brax_seeds, ALGOS[args.algo][1], partial, args.eval_mode,
-                   args.brax_first_seed)
+                   args.brax_first_seed, args.evals)
             print(task, "brax", [round(r, 1) for r in row["brax"]["returns"]], f"{row['brax']['wall_s']:.0f} s",
                   flush=True)  # fmt: skip
         write(stem, result, echo=task == args.tasks[-1])

@@ -120,6 +120,53 @@ def test_a_killed_brax_run_keeps_the_seeds_it_finished(tmp_path):
     assert "| 900.0 ± 0.0 (sampled) (1 of 3 seeds) |" in (tmp_path / "out" / "gpu-x-brax_tasks.md").read_text()
 
 
+def test_a_side_cut_short_shows_its_steps_and_is_not_compared(tmp_path):
+    """Records left by runs cut by a time limit (``cut``): each side's cell names where it stopped, and
+    neither the return nor the wall is marked as at the goal, even where ours is ahead."""
+    sampled = dict(eval_mode="stochastic")
+    ours = _part(tmp_path, "ours", "ours", [1000.0], 10.0, returns_deterministic=[1000.0], cut=True, **sampled)
+    brax = _part(tmp_path, "brax", "brax", [900.0], 50.0, **sampled)
+    brax_tasks.main(["--merge", ours, brax, "--out", str(tmp_path / "a")])
+    md = (tmp_path / "a" / "gpu-x-brax_tasks.md").read_text()
+    assert "| 900.0 ± 0.0 (sampled) | 1000.0 ± 0.0 (cut at 300 steps) | 1000.0 ± 0.0 | 50 | 10 |" in md
+    ours = _part(tmp_path, "ours2", "ours", [1000.0], 10.0, returns_deterministic=[1000.0], **sampled)
+    brax = _part(tmp_path, "brax2", "brax", [900.0], 50.0, cut=True, **sampled)
+    brax_tasks.main(["--merge", ours, brax, "--out", str(tmp_path / "b")])
+    md = (tmp_path / "b" / "gpu-x-brax_tasks.md").read_text()
+    assert "| 900.0 ± 0.0 (sampled) (cut at 300 steps) | 1000.0 ± 0.0 | 1000.0 ± 0.0 | 50 | 10 |" in md
+
+
+def test_brax_s_side_reports_its_first_seed_as_it_goes_then_each_seed(monkeypatch):
+    """A stand-in for brax's trainer with 3 evaluations: the first seed's record after each of them (cut
+    until its end), then the finished seeds'; the second seed's evaluations add nothing."""
+    from benchmarks.peers import brax_ppo
+
+    def fake(env, row, steps, seed, peer, deterministic_eval, num_evals, on_eval):
+        evals = [(i * steps // (num_evals - 1), 10.0 * seed + i) for i in range(num_evals)]
+        for k in range(1, num_evals + 1):
+            run = {"final_return": evals[k - 1][1], "curve_steps": [s for s, _ in evals[:k]],
+                   "curve": [r for _, r in evals[:k]], "wall_s": 1.0, "env_steps": evals[k - 1][0]}  # fmt: skip
+            on_eval(run)
+        return run
+
+    monkeypatch.setattr(brax_ppo, "train_published", fake)
+    written = []
+    last = brax_tasks.theirs(None, {}, 100, seeds=2, peer="sac", done=written.append, first_seed=4, evals=3)
+    assert [(w["env_steps"], w.get("cut", False), w["seed_ids"]) for w in written] == [
+        (0, True, [4]), (50, True, [4]), (100, True, [4]), (100, False, [4]), (100, False, [4, 5])]
+    assert last == written[-1] and last["returns"] == [42.0, 52.0] and last["curves"][1] == [50.0, 51.0, 52.0]
+
+
+def test_too_few_evaluations_is_a_one_line_error(capsys):
+    try:
+        brax_tasks.main(["--tasks", "inverted_pendulum", "--evals", "1"])
+    except SystemExit as e:
+        assert e.code == 2
+    else:
+        raise AssertionError("--evals 1 must stop the benchmark")
+    assert "--evals 1: at least 2" in capsys.readouterr().err.strip().splitlines()[-1]
+
+
 def test_action_wrappers_hand_the_env_the_clipped_or_squashed_action_and_brax_s_preset_squashes():
     import jax.numpy as jnp
 
@@ -147,6 +194,7 @@ def test_eval_points_spread_brax_s_ten_evaluations_over_the_updates():
     assert brax_tasks.eval_points(18) == [0, 2, 4, 6, 8, 10, 12, 14, 16, 18]
     assert brax_tasks.eval_points(4) == [0, 1, 2, 3, 4]  # fewer updates than evaluations: each update once
     assert brax_tasks.eval_points(27) == [0, 3, 6, 9, 12, 15, 18, 21, 24, 27]
+    assert brax_tasks.eval_points(18, 3) == [0, 9, 18] and brax_tasks.eval_points(18, 2) == [0, 18]  # --evals
 
 
 def test_ours_evaluates_along_training_without_changing_it():
@@ -159,7 +207,15 @@ def test_ours_evaluates_along_training_without_changing_it():
 
     env, row = Line(), brax_tasks.brax_row("inverted_pendulum", 8)
     given = {"activation": "swish"}
-    out = brax_tasks.ours(env, "inverted_pendulum", row, 1920, seeds=1, eval_episodes=4, overrides=given)
+    written = []  # what a run cut short leaves: the first seed's record after each evaluation, then the seed's
+    out = brax_tasks.ours(env, "inverted_pendulum", row, 1920, seeds=1, eval_episodes=4, overrides=given,
+                          done=written.append)  # fmt: skip
+    assert [w["env_steps"] for w in written] == [0, 640, 1280, 1920] and written[-1] == {**out, "wall_s":
+           written[-1]["wall_s"], "wall_per_seed_s": written[-1]["wall_per_seed_s"],
+           "env_steps_per_s": written[-1]["env_steps_per_s"]}  # fmt: skip
+    assert [w.get("cut", False) for w in written] == [True, True, True, False]
+    assert written[1]["curve_steps"] == [0, 640] and written[1]["curves"] == [out["curves"][0][:2]]
+    assert np.shape(written[1]["training_curves"]) == (1, 1) and written[1]["returns"] == [out["curves"][0][1]]
     trainer, length = brax_tasks.our_trainer("ppo", "inverted_pendulum", env, row, 1920, given)
     assert trainer.num_updates == 3 and out["curve_steps"] == [0, 640, 1280, 1920]
     assert out["curve_kind"] == "evaluation" and out["eval_mode"] == "stochastic"
@@ -171,6 +227,10 @@ def test_ours_evaluates_along_training_without_changing_it():
     # each decision held for 2 env steps: 640 decisions (one iteration) are brax's 1280 env steps
     held = brax_tasks.ours(env, "inverted_pendulum", {**row, "action_repeat": 2}, 1280, seeds=1, eval_episodes=4)
     assert held["curve_steps"] == [0, 1280] and held["env_steps"] == 1280 and np.isfinite(held["returns"]).all()
+    # two evaluations (--evals 2): before training and at its end
+    two = brax_tasks.ours(env, "inverted_pendulum", row, 1920, seeds=1, eval_episodes=4, overrides=given, evals=2)
+    assert two["curve_steps"] == [0, 1920]
+    np.testing.assert_allclose(two["returns_deterministic"], out["returns_deterministic"], rtol=1e-5)
 
     def whole(key):
         state = trainer.init(key)

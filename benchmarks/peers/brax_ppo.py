@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import functools
 import time
+from collections.abc import Callable
 from typing import Any
 
 import jax
@@ -100,11 +101,12 @@ def run_brax_ppo(
 
 def train_published(
     env: Any, row: dict[str, float], num_timesteps: int, seed: int = 0, algo: str = "ppo",
-    deterministic_eval: bool = False,
+    deterministic_eval: bool = False, num_evals: int = 10, on_eval: Callable[[dict[str, Any]], None] | None = None,
 ) -> dict[str, Any]:  # fmt: skip
     """brax's ``ppo.train`` (or, with ``algo='sac'``, ``sac.train``) with a task's published settings (``row``:
     brax's own argument names, a row of ``train.presets.BRAX_PPO`` or ``BRAX_SAC``) for ``num_timesteps``
-    env steps; brax's default networks, normalised observations, 10 evaluations.
+    env steps; brax's default networks, normalised observations, ``num_evals`` evaluations (the first before
+    training), each followed by ``on_eval`` with the record so far.
 
     Returns ``final_return`` (brax's last ``eval/episode_reward``: 128 episodes of the policy's sampled
     actions, brax's default, or with ``deterministic_eval`` of its mode), ``curve_steps`` / ``curve``
@@ -129,17 +131,23 @@ def train_published(
     install_shim()
     evals: list[tuple[int, float]] = []
 
+    def so_far() -> dict[str, Any]:
+        return {"final_return": evals[-1][1], "curve_steps": [s for s, _ in evals], "curve": [r for _, r in evals],
+                "wall_s": time.perf_counter() - t0, "env_steps": evals[-1][0]}  # fmt: skip
+
     def progress(step: int, metrics: dict) -> None:
         if "eval/episode_reward" in metrics:
             evals.append((int(step), float(metrics["eval/episode_reward"])))
             print(f"  brax {algo} seed {seed}: {int(step):,} env steps, eval return {evals[-1][1]:.1f}, "
                   f"{time.perf_counter() - t0:.0f} s", flush=True)  # fmt: skip
+            if on_eval is not None:
+                on_eval(so_far())
 
     t0 = time.perf_counter()
     trainer.train(
         environment=env,
         num_timesteps=int(num_timesteps),
-        num_evals=10,
+        num_evals=int(num_evals),
         normalize_observations=True,
         deterministic_eval=deterministic_eval,
         action_repeat=int(row.get("action_repeat", 1)),
@@ -152,6 +160,4 @@ def train_published(
         **extra,
         **{k: int(row[k]) for k in names},
     )
-    wall = time.perf_counter() - t0
-    return {"final_return": evals[-1][1], "curve_steps": [s for s, _ in evals], "curve": [r for _, r in evals],
-            "wall_s": wall, "env_steps": evals[-1][0]}  # fmt: skip
+    return so_far()
