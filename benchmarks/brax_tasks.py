@@ -7,6 +7,7 @@ return at equal env steps, wall time, steps/s.
     python -m benchmarks.brax_tasks --algo td3 --tasks hopper --steps 1000000   # off-policy: brax's SAC beside
     python -m benchmarks.brax_tasks --tasks halfcheetah --no-brax --ours activation=swish state_std=true \
         tanh_actions=true clip_actions=false                           # brax's policy parametrisation
+    python -m benchmarks.brax_tasks --tasks halfcheetah --ours segments=true   # brax's update (advantage_segment)
 
 Off-policy (``--algo td3`` or ``ddpg``): the tasks brax trains with SAC (:data:`train.presets.BRAX_SAC`,
 hopper and walker2d), brax's ``sac.train`` with the row as it is, ours through
@@ -100,13 +101,16 @@ def brax_ppo_steps(row: dict[str, float], steps: int, num_evals: int = 10) -> in
 def our_config(algo: str, task: str, action_size: int, row: dict[str, float], steps: int,
                overrides: dict[str, Any] | None = None) -> Any:  # fmt: skip
     """Our validated config of ``algo`` for the task's ``row`` and ``steps`` env steps, with ``overrides``
-    (fields of :class:`PPOConfig` or :class:`DDPGConfig`) over it; ``ConfigError`` naming a bad one."""
+    (fields of :class:`PPOConfig` or :class:`DDPGConfig`) over it; ``ConfigError`` naming a bad one.
+    PPO's ``segments=True`` among them builds the config with brax's own update
+    (:func:`train.presets.brax_ppo_config`'s ``segments``)."""
+    overrides = dict(overrides or {})
     if algo == "ppo":
-        config = brax_ppo_config(task, action_size, **row)
+        config = brax_ppo_config(task, action_size, bool(overrides.pop("segments", False)), **row)
     else:
         config = brax_sac_ddpg_config(task, **row)
         config = config.replace(**TD3_SETTINGS) if algo == "td3" else config
-    return apply_overrides(config.replace(total_steps=steps), overrides or {}, type(config).__name__).validate()
+    return apply_overrides(config.replace(total_steps=steps), overrides, type(config).__name__).validate()
 
 
 def our_trainer(algo: str, task: str, env: Any, row: dict[str, float], steps: int,

@@ -247,6 +247,13 @@ def test_our_config_takes_overrides_and_a_bad_one_is_a_one_line_error(capsys):
     config = brax_tasks.our_config("ppo", "halfcheetah", 6, BRAX_PPO["halfcheetah"], 1000, {"tanh_actions": True,
                                    "clip_actions": False, "activation": "swish"})  # fmt: skip
     assert config.tanh_actions and not config.clip_actions and config.activation == "swish"
+    # brax's own update: 512 unrolls of 20 steps per mini-batch, 8 passes x 32 mini-batches, the critic beside
+    brax = brax_tasks.our_config("ppo", "halfcheetah", 6, BRAX_PPO["halfcheetah"], 1000, {"segments": True})
+    got = (brax.advantage_segment, brax.minibatch_size, brax.actor_updates, brax.critic_updates)
+    assert got == (20, 10240, 256, 256)
+    assert not brax.critic_first and brax.unroll_length == 160  # 16 384 unrolls over 2 048 lanes: 8 each
+    hopper = brax_tasks.our_config("ppo", "hopper", 3, BRAX_PPO["hopper"], 1000, {"segments": True})
+    assert (hopper.advantage_segment, hopper.minibatch_size, hopper.num_envs) == (5, 10240, 4096)  # 2 048 unrolls
     for bad, message in (("nope=1", "unknown setting 'nope'"), ("clip_actions=true", "exclude each other")):
         try:
             brax_tasks.main(["--tasks", "halfcheetah", "--ours", bad])

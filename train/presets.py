@@ -79,9 +79,14 @@ BRAX_PPO: dict[str, dict[str, float]] = {
 """brax's PPO settings per brax task, in brax's terms (converted by :func:`brax_ppo_config`)."""
 
 
-def brax_ppo_config(task: str, action_size: int, **row: float) -> PPOConfig:
+def brax_ppo_config(task: str, action_size: int, segments: bool = False, **row: float) -> PPOConfig:
     """The :class:`PPOConfig` of ``BRAX_PPO[task]``, its entries updated by ``row`` (``KeyError``
     naming the tasks for an unknown one).
+
+    ``segments``: brax's own update instead (not yet compared with brax on a GPU) — mini-batches of
+    ``batch_size`` unrolls of ``unroll_length`` steps drawn from all lanes, advantages and value targets
+    recomputed on each with the current critic (``advantage_segment``), actor and critic stepping together
+    ``num_updates_per_batch · num_minibatches`` times per batch.
 
     brax collects ``batch_size · num_minibatches`` unrolls of ``unroll_length`` steps per training
     step and makes ``num_updates_per_batch`` passes of ``num_minibatches`` mini-batches over them.
@@ -109,7 +114,13 @@ def brax_ppo_config(task: str, action_size: int, **row: float) -> PPOConfig:
     n = unrolls * int(b["unroll_length"])
     minibatch = max(lanes, (int(b["batch_size"] * b["unroll_length"]) // lanes) * lanes)
     updates = max(1, round(b["num_updates_per_batch"] * lanes * n / minibatch))
-    return PPOConfig(
+    brax_update = {}
+    if segments:
+        brax_update = dict(advantage_segment=int(b["unroll_length"]), critic_first=False,
+                           minibatch_size=int(b["batch_size"] * b["unroll_length"]),
+                           actor_updates=int(b["num_updates_per_batch"] * b["num_minibatches"]),
+                           critic_updates=int(b["num_updates_per_batch"] * b["num_minibatches"]))  # fmt: skip
+    config = PPOConfig(
         num_envs=lanes, unroll_length=n, minibatch_size=minibatch, actor_updates=updates, critic_updates=updates,
         total_steps=int(b["num_timesteps"]), gamma=float(b["discounting"]), gae_lambda=0.95, clip_eps=0.3,
         entropy_coef=float(b["entropy_cost"]), reward_scale=float(b["reward_scaling"]),
@@ -119,6 +130,7 @@ def brax_ppo_config(task: str, action_size: int, **row: float) -> PPOConfig:
         actor_hidden=(32, 32, 32, 32), critic_hidden=(256,) * 5, episode_length=int(b["episode_length"]),
         reset_refresh=1.0,
     )  # fmt: skip
+    return config.replace(**brax_update)
 
 
 BRAX_SAC_COLUMNS = ("num_timesteps", "num_envs", "batch_size", "grad_updates_per_step", "discounting",

@@ -271,6 +271,46 @@ def test_critic_first_takes_advantages_from_the_critic_after_this_iterations_upd
     assert change > 0.1 * moved(s_first).max()  # the advantages did change
 
 
+def test_advantage_segments_of_the_whole_unroll_are_the_thesis_s_step_and_shorter_ones_only_cut_gae():
+    """One mini-batch of the whole batch, one step each. Segments of the whole unroll: advantages and
+    λ-returns from the critic that collected the data, as in the thesis's order, so actor and critic end
+    where it leaves them. Segments of 2 steps with λ = 0 (one-step TD errors, which no segment end cuts)
+    end there too; with λ = 0.95 the segment ends cut the λ-returns, so the critic's loss differs."""
+    config = TOY.replace(batch_norm=False, objective="clip", schedule=(), minibatch_size=32, actor_updates=1,
+                         critic_updates=1, critic_lr=0.03, actor_lr=0.03)  # fmt: skip
+    close = lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-6)  # noqa: E731
+    s0 = jax.jit(make_trainer(config, Line()).init)(jax.random.PRNGKey(5))
+
+    done: dict = {}
+
+    def step(c: PPOConfig):
+        if c not in done:
+            done[c] = jax.jit(make_trainer(c, Line()).update)(s0)
+        return done[c]
+
+    for c in (config.replace(advantage_segment=8), config.replace(advantage_segment=2, gae_lambda=0.0)):
+        (seg, m_seg), (same, m_same) = step(c), step(c.replace(advantage_segment=0))
+        jax.tree.map(close, (seg.actor_params, seg.critic_params), (same.actor_params, same.critic_params))
+        close(m_seg["critic_loss"], m_same["critic_loss"])
+    (_, m_cut), (plain, m_plain) = step(config.replace(advantage_segment=2)), step(config)
+    assert abs(float(m_cut["critic_loss"]) / float(m_plain["critic_loss"]) - 1.0) > 0.01
+    assert np.abs(plain.actor_params["Dense_0"]["kernel"] - s0.actor_params["Dense_0"]["kernel"]).max() > 0.01
+
+
+def test_advantage_segment_errors_name_the_setting():
+    base = dict(num_envs=4, unroll_length=8, minibatch_size=16, actor_updates=2, critic_updates=2)
+    PPOConfig(advantage_segment=4, **base).validate()
+    for change, message in (
+        (dict(advantage_segment=3), "advantage_segment=3 must divide unroll_length=8"),
+        (dict(advantage_segment=8, minibatch_size=20), "advantage_segment=8 must divide minibatch_size=20"),
+        (dict(advantage_segment=4, critic_updates=3), "actor_updates=2 must equal critic_updates=3"),
+        (dict(advantage_segment=4, critic_first=True), "critic_first=True is not available with advantage_segment=4"),
+        (dict(advantage_segment=-1), "advantage_segment=-1 is out of range"),
+    ):
+        with pytest.raises(ConfigError, match=message):
+            PPOConfig(**{**base, **change}).validate()
+
+
 # ---------------------------------------------------------------------------------------------
 # batch-norm actor: π_old is the policy that acted
 

@@ -53,6 +53,13 @@ class PPOConfig(ActorCriticConfig):
     5 M steps) the advantages then lag the critic by one iteration less."""
     gae_lambda: float = 0.95
     """λ of GAE (Eq. 5.12) and of the critic's λ-returns (Eq. 5.14)."""
+    advantage_segment: int = 0
+    """0: advantages and λ-return targets once per batch, over each lane's whole unroll. S > 0 (brax's
+    PPO, S its ``unroll_length``): each mini-batch is ``minibatch_size / S`` whole segments of S steps
+    drawn from all lanes (per device; the draws then depend on the device count), and recomputes both
+    with the current critic, bootstrapped at each segment's end, advantages normalised over the
+    mini-batch; actor and critic then step together, once per mini-batch (``actor_updates ==
+    critic_updates``). MLP policy, no pre-training; S divides ``unroll_length`` and ``minibatch_size``."""
     clip_actions: bool = False
     """Clip the actions the env receives, and the deterministic policy's, to [−1, 1] (the Gaussian's
     sample is kept for its log-probability); for envs that take the action as given (brax's)."""
@@ -111,6 +118,22 @@ class PPOConfig(ActorCriticConfig):
     to its shape (e.g. the RSI window and the early-termination limit of the tracking envs,
     thesis §3.5.2). On the command line: --schedule 0 et_limit 20 0.5 et_limit 15 ..."""
 
+    def _check_segments(self) -> None:
+        """``advantage_segment`` > 0: the settings that go with it (``ConfigError`` naming the first not)."""
+        s = self.advantage_segment
+        for name, plain in (("policy", "mlp"), ("pretrain", "none"), ("critic_first", False)):
+            if getattr(self, name) != plain:
+                raise ConfigError(f"{name}={getattr(self, name)!r} is not available with advantage_segment={s} "
+                                  f"(valid: {plain!r})")  # fmt: skip
+        if self.actor_updates != self.critic_updates:
+            raise ConfigError(f"advantage_segment={s}: actor_updates={self.actor_updates} must equal "
+                              f"critic_updates={self.critic_updates} (both step on each mini-batch)")  # fmt: skip
+        if self.unroll_length % s:
+            raise ConfigError(f"advantage_segment={s} must divide unroll_length={self.unroll_length}")
+        if self.minibatch_size % s:
+            raise ConfigError(f"advantage_segment={s} must divide minibatch_size={self.minibatch_size} "
+                              "(whole segments)")  # fmt: skip
+
     def validate(self) -> PPOConfig:
         """Raise ``ConfigError`` naming the first invalid field; return self."""
         super().validate()
@@ -141,6 +164,9 @@ class PPOConfig(ActorCriticConfig):
                     raise ConfigError(f"{name}={value!r} needs policy='mlp' (valid with 'lstm': {plain!r})")
         if self.pretrain != "none" and self.policy != "mlp":
             raise ConfigError(f"pretrain={self.pretrain!r} needs policy='mlp' (got policy={self.policy!r})")
+        check_range("advantage_segment", self.advantage_segment, 0)
+        if self.advantage_segment:
+            self._check_segments()
         if self.policy == "lstm":
             if self.batch_norm:
                 raise ConfigError("batch_norm=True is not available with policy='lstm'; set batch_norm=False")
@@ -153,7 +179,7 @@ class PPOConfig(ActorCriticConfig):
                     f"minibatch_size={self.minibatch_size} must be a multiple of num_envs * seq_length = "
                     f"{self.num_envs * self.seq_length} (policy='lstm': whole sequences from every lane)"
                 )
-        if self.minibatch_size % self.num_envs:
+        if self.minibatch_size % self.num_envs and not self.advantage_segment:
             raise ConfigError(
                 f"minibatch_size={self.minibatch_size} must be a multiple of num_envs={self.num_envs} "
                 "(each mini-batch takes the same number of transitions from every lane)"

@@ -11,6 +11,8 @@ GAE advantages (Eq. 5.12) and λ-return targets (Eq. 5.14) are computed per lane
 termination and truncation apart; then m actor and n critic Adam steps run on mini-batches
 of B transitions (Algorithm 8), gradients averaged over devices. The lanes are split over
 the device mesh with ``shard_map`` (``jaxrl_robot.parallel``); parameters stay replicated.
+With ``advantage_segment`` S > 0 (brax's update) each mini-batch is whole S-step segments whose
+advantages and targets come from the critic of that moment, and one actor and one critic step follow.
 
 ``policy='lstm'`` (thesis §5.7) runs the same iteration with recurrent networks
 (:mod:`jaxrl_robot.agents.ppo.nets`): lanes carry the LSTM states of actor and critic, every
@@ -19,12 +21,13 @@ step records the states it started from, updates run on mini-batches of whole se
 starts from the state the start-state table holds for ``k`` (:mod:`jaxrl_robot.recurrent`).
 
 Randomness is keyed by *global* lane index (action noise, mini-batch choice, env resets), so
-the result does not depend on how many devices share the lanes.
+the result does not depend on how many devices share the lanes (except the segments' draws).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 import jax
@@ -142,7 +145,7 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
     N, k_local, obs_size = config.unroll_length, run.local_lanes, run.obs_size
     nets = make_ppo_nets(config, run.action_size, bn_axis_name=_LANES)
     L = nets.seq_length  # steps per training sequence (1: the MLP)
-    b_seq = config.minibatch_size // (config.num_envs * L)  # sequences per lane in each mini-batch
+    S = config.advantage_segment  # steps per advantage segment (0: advantages once per batch)
     use_table = uses_start_table(config, env)
     pretrain_iters = pretrain_iterations(config, env)
     actor_tx = common.make_optimizer(config.actor_lr, config.max_grad_norm)
@@ -184,17 +187,42 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
         )
 
     # ---- one iteration (inside shard_map: this device's k_local lanes) -----------------
-    def minibatch(key: jax.Array, lane_ids: jax.Array, data: Any) -> Any:
-        """``b_seq`` whole sequences of ``L`` steps from every lane (drawn without replacement):
-        ``[N, k_local, ...] -> [L, b_seq * k_local, ...]``."""
-        keys = per_lane_keys(key, lane_ids)
-        idx = jax.vmap(lambda k: jax.random.permutation(k, N // L)[:b_seq], out_axes=1)(keys)  # [b_seq, k_local]
+    def sequences_of(length: int) -> Callable[[jax.Array, jax.Array, Any], Any]:
+        """``draw(key, lane_ids, data)``: a mini-batch of ``minibatch_size`` transitions as whole sequences of
+        ``length`` steps, ``b = minibatch_size / (num_envs · length)`` from every lane (drawn without
+        replacement): ``[N, k_local, ...] -> [length, b * k_local, ...]``."""
+        b = config.minibatch_size // (config.num_envs * length)
+
+        def draw(key: jax.Array, lane_ids: jax.Array, data: Any) -> Any:
+            keys = per_lane_keys(key, lane_ids)
+            idx = jax.vmap(lambda k: jax.random.permutation(k, N // length)[:b], out_axes=1)(keys)  # [b, k_local]
+
+            def take(x: jax.Array) -> jax.Array:
+                seqs = x.reshape((N // length, length) + x.shape[1:])
+                ix = idx.reshape((b, 1) + idx.shape[1:] + (1,) * (x.ndim - 2))
+                picked = jnp.moveaxis(jnp.take_along_axis(seqs, ix, axis=0), 1, 0)  # [length, b, k_local, ...]
+                return picked.reshape((length, b * k_local) + x.shape[2:])
+
+            return jax.tree.map(take, data)
+
+        return draw
+
+    minibatch = sequences_of(L)  # the training sequences (one step each for the MLP)
+    devices = config.num_envs // k_local
+    if S and (config.minibatch_size // S) % devices:
+        raise ConfigError(f"minibatch_size={config.minibatch_size} / advantage_segment={S} segments must split "
+                          f"evenly over the {devices} devices")  # fmt: skip
+
+    def segments(key: jax.Array, lane_ids: jax.Array, data: Any) -> Any:
+        """``m = minibatch_size / (S · devices)`` whole segments of ``S`` steps drawn without replacement
+        from all of this device's lanes (as brax draws its unrolls): ``[N, k_local, ...] -> [S, m, ...]``."""
+        m = config.minibatch_size // (S * devices)
+        idx = jax.random.permutation(jax.random.fold_in(key, lane_ids[0]), (N // S) * k_local)[:m]
+        seg, lane = idx // k_local, idx % k_local
 
         def take(x: jax.Array) -> jax.Array:
-            seqs = x.reshape((N // L, L) + x.shape[1:])
-            ix = idx.reshape((b_seq, 1) + idx.shape[1:] + (1,) * (x.ndim - 2))
-            picked = jnp.moveaxis(jnp.take_along_axis(seqs, ix, axis=0), 1, 0)  # [L, b_seq, k_local, ...]
-            return picked.reshape((L, b_seq * k_local) + x.shape[2:])
+            picked = x.reshape((N // S, S) + x.shape[1:])[seg, :, lane]  # [m, S, ...]
+            return jnp.moveaxis(picked, 0, 1)
 
         return jax.tree.map(take, data)
 
@@ -214,6 +242,19 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
     def critic_loss_fn(params, mb):
         inputs, targets = mb
         return value_loss(flat(nets.critic_forward(params, *inputs)[0]), flat(targets))
+
+    def advantages(rewards, values, next_values, terminations, truncations) -> jax.Array:
+        """GAE (Eq. 5.12) of every lane's stream ``[T, B]`` (each truncated at its end)."""
+        per_lane = jax.vmap(gae, in_axes=(1, 1, 1, 1, 1, None, None), out_axes=1)
+        return per_lane(rewards, values, next_values, terminations, truncations, config.gamma, config.gae_lambda)
+
+    def normalized(adv: jax.Array) -> jax.Array:
+        """``adv`` to zero mean and unit variance over all devices' lanes (``normalize_advantages``)."""
+        if not config.normalize_advantages:
+            return adv
+        mu = parallel.pmean(jnp.mean(adv))
+        var = parallel.pmean(jnp.mean((adv - mu) ** 2))
+        return (adv - mu) / (jnp.sqrt(var) + 1e-8)
 
     def iteration(state: PPOState) -> tuple[PPOState, Metrics]:
         key, k_roll, k_actor, k_critic = jax.random.split(state.key, 4)
@@ -289,14 +330,7 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
             adv_values, adv_next_values = values_of(critic_params)
         else:
             adv_values, adv_next_values = values, next_values
-        per_lane = dict(in_axes=(1, 1, 1, 1, 1, None, None), out_axes=1)
-        adv = jax.vmap(gae, **per_lane)(
-            rewards, adv_values, adv_next_values, traj.termination, traj.truncation, config.gamma, config.gae_lambda
-        )
-        if config.normalize_advantages:
-            mu = parallel.pmean(jnp.mean(adv))
-            var = parallel.pmean(jnp.mean((adv - mu) ** 2))
-            adv = (adv - mu) / (jnp.sqrt(var) + 1e-8)
+        adv = normalized(advantages(rewards, adv_values, adv_next_values, traj.termination, traj.truncation))
 
         # m actor updates (Algorithm 8, lines 4-10); π_old is the policy that collected the data,
         # exactly as it acted (moving batch-norm statistics, the observation normaliser it saw).
@@ -325,7 +359,32 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
             (params, stats), (loss, entropy) = imitate(k_actor, lane_ids, *args)
             return (params, stats, state.actor_opt), (loss, jnp.zeros(()), entropy)
 
-        if pretrain_iters:
+        def joint_step(carry, k):
+            """One mini-batch of whole segments: advantages and λ-returns from the current critic
+            (Eq. 5.12, 5.14; ``lambda_returns = gae + values``), then one actor and one critic step."""
+            (a_params, a_stats, a_opt), (c_params, c_opt) = carry
+            data = (inputs, traj.action, rewards, next_obs, traj.termination, traj.truncation, old_mean, old_log_std)
+            mb_inputs, action, reward, mb_next_obs, term, trunc, mb_mean, mb_log_std = segments(k, lane_ids, data)
+            v, after = nets.critic_forward(c_params, *mb_inputs)  # [S, m]
+            adv = advantages(reward, v, nets.next_values(c_params, after, mb_next_obs), term, trunc)
+            mb = (mb_inputs, *map(flat, (action, normalized(adv), mb_mean, mb_log_std)))
+            grad_fn = jax.value_and_grad(actor_loss_fn, has_aux=True)
+            (loss, (a_stats, clip_frac, entropy, _)), grads = grad_fn(a_params, a_stats, mb, state.kl_beta)
+            a_params, a_opt = common.apply_gradients(actor_tx, parallel.pmean(grads), a_opt, a_params)
+            c_loss, grads = jax.value_and_grad(critic_loss_fn)(c_params, (mb_inputs, adv + v))
+            c_params, c_opt = common.apply_gradients(critic_tx, parallel.pmean(grads), c_opt, c_params)
+            return ((a_params, a_stats, a_opt), (c_params, c_opt)), (loss, clip_frac, entropy, c_loss)
+
+        def joint_update():
+            carry = ((state.actor_params, state.actor_stats, state.actor_opt), (state.critic_params, state.critic_opt))
+            (actor_carry, critic_carry), (*losses, c_loss) = jax.lax.scan(
+                joint_step, carry, jax.random.split(k_actor, config.actor_updates)
+            )
+            return (actor_carry, tuple(map(jnp.mean, losses))), critic_carry, c_loss
+
+        if S:
+            actor_out, (critic_params, critic_opt), c_loss = joint_update()
+        elif pretrain_iters:
             actor_out = jax.lax.cond(pretraining, imitation_update, ppo_actor_update)
         else:
             actor_out = ppo_actor_update()
@@ -340,7 +399,7 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
             adapted = adapt_kl_beta(kl_beta, kl, config.kl_target, config.kl_beta_min, config.kl_beta_max)
             kl_beta = jnp.where(pretraining, kl_beta, adapted)
 
-        if not config.critic_first:
+        if not (config.critic_first or S):
             (critic_params, critic_opt), c_loss = critic_update()
 
         # Same dtypes in as out (an env may return weak-typed metrics), so the jitted chunk never retraces.
