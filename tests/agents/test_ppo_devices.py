@@ -48,6 +48,16 @@ SCRIPT = textwrap.dedent(
             np.testing.assert_allclose(m1[k], m4[k], rtol=1e-4, atol=1e-6, err_msg=f"{name} {k}")
         jax.tree.map(lambda a, b: np.testing.assert_allclose(a, b, atol=1e-5), s1.critic_params, s4.critic_params)
         np.testing.assert_allclose(a1, a4, atol=1e-4, err_msg=name)
+    # brax's update (advantage_segment): segments drawn per device, so the devices agree where every
+    # mini-batch is the whole batch (4 segments of 4 steps from each device's 2 lanes)
+    seg = cfg.replace(advantage_segment=4, minibatch_size=64, actor_updates=2, critic_updates=2)
+    got = []
+    for n in (1, 4):
+        trainer = make_trainer(seg, Line(), mesh=parallel.lane_mesh(n))
+        state, metrics = jax.jit(trainer.update)(jax.jit(trainer.init)(jax.random.PRNGKey(0)))
+        got.append((jax.device_get(state.critic_params), jax.device_get(metrics)["critic_loss"]))
+    jax.tree.map(lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5), got[0][0], got[1][0])
+    np.testing.assert_allclose(got[0][1], got[1][1], rtol=1e-4)
     # and training did move the policy, so the comparison is not between two initial states
     init = jax.jit(make_trainer(cfg, Line()).init)(jax.random.PRNGKey(0))
     a0 = np.asarray(make_trainer(cfg, Line()).policy(init)(probe))
