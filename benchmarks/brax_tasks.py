@@ -452,7 +452,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 
 def missing(side: dict[str, Any]) -> dict[str, Any]:
     """A side that did not run: NaN returns, no curves, the other side's steps (for the table's columns)."""
-    return {**side, "returns": [float("nan")], "returns_deterministic": [float("nan")], "curves": [],
+    kept = {k: v for k, v in side.items() if k != "cut"}  # the other side's state is not this one's
+    return {**kept, "returns": [float("nan")], "returns_deterministic": [float("nan")], "curves": [],
             "overrides": {}, "wall_s": float("nan"),
             "wall_per_seed_s": float("nan"), "env_steps_per_s": float("nan")}  # fmt: skip
 

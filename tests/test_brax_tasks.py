@@ -129,6 +129,9 @@ def test_a_side_cut_short_shows_its_steps_and_is_not_compared(tmp_path):
     brax_tasks.main(["--merge", ours, brax, "--out", str(tmp_path / "a")])
     md = (tmp_path / "a" / "gpu-x-brax_tasks.md").read_text()
     assert "| 900.0 ± 0.0 (sampled) | 1000.0 ± 0.0 (cut at 300 steps) | 1000.0 ± 0.0 | 50 | 10 |" in md
+    brax_tasks.main(["--merge", ours, "--out", str(tmp_path / "alone")])  # brax's side not run: not "cut"
+    md = (tmp_path / "alone" / "gpu-x-brax_tasks.md").read_text()
+    assert "| nan ± nan | 1000.0 ± 0.0 (cut at 300 steps) |" in md
     ours = _part(tmp_path, "ours2", "ours", [1000.0], 10.0, returns_deterministic=[1000.0], **sampled)
     brax = _part(tmp_path, "brax2", "brax", [900.0], 50.0, cut=True, **sampled)
     brax_tasks.main(["--merge", ours, brax, "--out", str(tmp_path / "b")])
