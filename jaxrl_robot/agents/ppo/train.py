@@ -27,7 +27,6 @@ the result does not depend on how many devices share the lanes (except the segme
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from typing import Any
 
 import jax
@@ -145,6 +144,7 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
     N, k_local, obs_size = config.unroll_length, run.local_lanes, run.obs_size
     nets = make_ppo_nets(config, run.action_size, bn_axis_name=_LANES)
     L = nets.seq_length  # steps per training sequence (1: the MLP)
+    b_seq = config.minibatch_size // (config.num_envs * L)  # sequences per lane in each mini-batch
     S = config.advantage_segment  # steps per advantage segment (0: advantages once per batch)
     use_table = uses_start_table(config, env)
     pretrain_iters = pretrain_iterations(config, env)
@@ -187,27 +187,20 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
         )
 
     # ---- one iteration (inside shard_map: this device's k_local lanes) -----------------
-    def sequences_of(length: int) -> Callable[[jax.Array, jax.Array, Any], Any]:
-        """``draw(key, lane_ids, data)``: a mini-batch of ``minibatch_size`` transitions as whole sequences of
-        ``length`` steps, ``b = minibatch_size / (num_envs · length)`` from every lane (drawn without
-        replacement): ``[N, k_local, ...] -> [length, b * k_local, ...]``."""
-        b = config.minibatch_size // (config.num_envs * length)
+    def minibatch(key: jax.Array, lane_ids: jax.Array, data: Any) -> Any:
+        """``b_seq`` whole sequences of ``L`` steps from every lane (drawn without replacement):
+        ``[N, k_local, ...] -> [L, b_seq * k_local, ...]``."""
+        keys = per_lane_keys(key, lane_ids)
+        idx = jax.vmap(lambda k: jax.random.permutation(k, N // L)[:b_seq], out_axes=1)(keys)  # [b_seq, k_local]
 
-        def draw(key: jax.Array, lane_ids: jax.Array, data: Any) -> Any:
-            keys = per_lane_keys(key, lane_ids)
-            idx = jax.vmap(lambda k: jax.random.permutation(k, N // length)[:b], out_axes=1)(keys)  # [b, k_local]
+        def take(x: jax.Array) -> jax.Array:
+            seqs = x.reshape((N // L, L) + x.shape[1:])
+            ix = idx.reshape((b_seq, 1) + idx.shape[1:] + (1,) * (x.ndim - 2))
+            picked = jnp.moveaxis(jnp.take_along_axis(seqs, ix, axis=0), 1, 0)  # [L, b_seq, k_local, ...]
+            return picked.reshape((L, b_seq * k_local) + x.shape[2:])
 
-            def take(x: jax.Array) -> jax.Array:
-                seqs = x.reshape((N // length, length) + x.shape[1:])
-                ix = idx.reshape((b, 1) + idx.shape[1:] + (1,) * (x.ndim - 2))
-                picked = jnp.moveaxis(jnp.take_along_axis(seqs, ix, axis=0), 1, 0)  # [length, b, k_local, ...]
-                return picked.reshape((length, b * k_local) + x.shape[2:])
+        return jax.tree.map(take, data)
 
-            return jax.tree.map(take, data)
-
-        return draw
-
-    minibatch = sequences_of(L)  # the training sequences (one step each for the MLP)
     devices = config.num_envs // k_local
     if S and (config.minibatch_size // S) % devices:
         raise ConfigError(f"minibatch_size={config.minibatch_size} / advantage_segment={S} segments must split "
