@@ -66,7 +66,7 @@ from benchmarks.tracking_report import pairs
 from benchmarks.train_throughput import RESULTS, device_label
 from envs_mjx.base import ActionRepeatWrapper
 from envs_mjx.config import ConfigError, apply_overrides
-from jaxrl_robot import plots
+from jaxrl_robot import parallel, plots
 from jaxrl_robot.agents import ddpg, ppo
 from jaxrl_robot.evaluation import run_test_episodes, two_policies
 from jaxrl_robot.types import Trainer
@@ -114,13 +114,16 @@ def our_config(algo: str, task: str, action_size: int, row: dict[str, float], st
 
 
 def our_trainer(algo: str, task: str, env: Any, row: dict[str, float], steps: int,
-                overrides: dict[str, Any] | None = None) -> tuple[Trainer, int]:  # fmt: skip
+                overrides: dict[str, Any] | None = None, devices: int = 1) -> tuple[Trainer, int]:  # fmt: skip
     """Our trainer of ``algo`` with the task's ``row`` (and ``overrides``, see :func:`our_config`) for
-    ``steps`` env steps, and its episode length."""
+    ``steps`` env steps, its lanes spread over the first ``devices`` devices (0: all), and its episode
+    length."""
     config = our_config(algo, task, int(env.action_size), row, steps, overrides)
+    mesh = parallel.lane_mesh(devices or None)
     if algo == "ppo":
-        return ppo.make_trainer(config, env), config.episode_length
-    return ddpg.make_trainer(config, env, iterations_per_update=max(1, config.iterations // 20)), config.episode_length
+        return ppo.make_trainer(config, env, mesh=mesh), config.episode_length
+    every = max(1, config.iterations // 20)
+    return ddpg.make_trainer(config, env, mesh=mesh, iterations_per_update=every), config.episode_length
 
 
 EVAL_MODES = ("stochastic", "deterministic")
@@ -149,9 +152,10 @@ def eval_points(num_updates: int, evals: int = 10) -> list[int]:
 def ours(env: Any, task: str, row: dict[str, float], steps: int, seeds: int, eval_episodes: int,
          seed_map: str = "loop", algo: str = "ppo", mode: str = "stochastic",
          overrides: dict[str, Any] | None = None, evals: int = 10,
-         done: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:  # fmt: skip
+         done: Callable[[dict[str, Any]], None] | None = None, devices: int = 1) -> dict[str, Any]:  # fmt: skip
     """Train our ``algo`` on ``seeds`` keys, one vmapped program (``seed_map='vmap'``) or one compiled
-    program called per key (``'loop'``), evaluating at the ``evals`` :func:`eval_points` (as brax does) in
+    program called per key (``'loop'``; each seed's lanes spread over ``devices`` devices, 0: all),
+    evaluating at the ``evals`` :func:`eval_points` (as brax does) in
     ``mode`` where the trainer can sample, and with the mean action; returns, evaluation curves,
     training-episode curves and wall time (compilation and the evaluations included, as brax's).
 
@@ -162,8 +166,9 @@ def ours(env: Any, task: str, row: dict[str, float], steps: int, seeds: int, eva
     if repeat > 1:
         env = ActionRepeatWrapper(env, repeat)
         row = {**row, "episode_length": int(row["episode_length"]) // repeat}
-    trainer, episode_length = our_trainer(algo, task, env, row, steps // repeat, overrides)
+    trainer, episode_length = our_trainer(algo, task, env, row, steps // repeat, overrides, devices)
     sampled = mode == "stochastic" and trainer.sample_policy is not None
+    trainer_devices = devices or jax.device_count()
     points = eval_points(trainer.num_updates, evals)
     per_update = trainer.env_steps_per_update * repeat  # env steps, as brax counts them
 
@@ -202,6 +207,7 @@ def ours(env: Any, task: str, row: dict[str, float], steps: int, seeds: int, eva
                 "curves": curves.tolist(), "curves_deterministic": curves_mean.tolist(),
                 "training_curve_steps": trained.tolist(), "training_curves": per_chunk[:, 0, :updates].tolist(),
                 "training_policy_std": per_chunk[:, 1, :updates].tolist(), "overrides": dict(overrides or {}),
+                "devices": trainer_devices,
                 **({"cut": True} if updates < trainer.num_updates else {})}  # fmt: skip
 
     def report(curves: np.ndarray, curves_mean: np.ndarray, per_chunk: np.ndarray, updates: int) -> None:
@@ -329,6 +335,8 @@ def to_markdown(result: dict[str, Any]) -> str:
         if t["ours"].get("overrides"):
             given = " ".join(f"{k}={v}" for k, v in t["ours"]["overrides"].items())
             out += [f"Ours on {t['task']} with `--ours {given}` over the preset.", ""]
+        if t["ours"].get("devices", 1) > 1:
+            out += [f"Ours on {t['task']}: each seed's lanes spread over {t['ours']['devices']} devices.", ""]
     for t in result["tasks"]:
         out.append(f"![{t['task']}]({os.path.basename(result['figures'])}/{t['task']}.png)")
     return "\n".join(out) + "\n"
@@ -383,6 +391,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--seed-map", default="loop", choices=["loop", "vmap"],
                    help="our seeds: one program called per seed, or one vmapped program (XLA's CPU compiler "
                    "stops with a floating point exception on the vmapped MJX program, jax 0.10.2)")  # fmt: skip
+    p.add_argument("--devices", type=int, default=1,
+                   help="devices our lanes are spread over (0: all; more than 1 with --seed-map loop)")
     p.add_argument("--out", default=RESULTS)
     p.add_argument("--label", default="", help="appended to the results files' name (e.g. 5M)")
     p.add_argument("--note", default="", help="a paragraph written under the table (e.g. how to read it)")
@@ -392,6 +402,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         return merge(args.merge, args.out, argv, args.label, args.note)
     if args.no_brax and args.no_ours:
         p.error("--no-brax and --no-ours: nothing would run; give at most one")
+    if not 0 <= args.devices <= jax.device_count():
+        p.error(f"--devices {args.devices}: this machine has {jax.device_count()} (0: all of them)")
+    if args.seed_map == "vmap" and args.seeds > 1 and (args.devices or jax.device_count()) > 1:
+        p.error(f"--seed-map vmap runs its {args.seeds} seeds on one device; add --devices 1 or --seed-map loop")
     if args.evals < 2:
         p.error(f"--evals {args.evals}: at least 2 (one before training, one at its end)")
     table = ALGOS[args.algo][2]
@@ -431,7 +445,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                 write(stem, result)
 
             row["ours"] = ours(env, task, settings, our_steps, args.seeds, args.eval_episodes, args.seed_map,
-                               args.algo, args.eval_mode, overrides, args.evals, ours_so_far)  # fmt: skip
+                               args.algo, args.eval_mode, overrides, args.evals, ours_so_far,
+                               args.devices)  # fmt: skip
             row["sides"].append("ours")
             print(task, "ours", [round(r, 1) for r in row["ours"]["returns"]], f"{row['ours']['wall_s']:.0f} s",
                   flush=True)  # fmt: skip

@@ -2,9 +2,11 @@
 
     python -m benchmarks.devices_agree                      # every case, fast preset, 2 chunks
     python -m benchmarks.devices_agree --cases ppo:arm7 a2c:arm7 --chunks 3
+    python -m benchmarks.devices_agree --cases ppo:brax:reacher --preset brax --extra "--advantage-segment 50 \
+        --no-critic-first --minibatch-size 409600 --actor-updates 4 --critic-updates 4"   # brax's update
 
 A case ``algo:env`` is built by the algorithm's own command line (``train.<algo>.parse`` and
-``build`` with ``--preset fast --devices D``), once on a 1-device mesh and once on all devices,
+``build`` with ``--preset fast`` (or ``--preset``) ``--devices D``), once on a 1-device mesh and once on all devices,
 with the same seed and the same total lanes. Both runs make ``--chunks`` jitted chunk calls of one
 training iteration each (so float reordering has little room to grow); the
 table gives the largest absolute difference of any parameter leaf (``*params*`` fields of the
@@ -17,6 +19,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import shlex
 import time
 from typing import Any
 
@@ -30,10 +33,10 @@ from jaxrl_robot import parallel
 CASES = ["ppo:arm7", "ppo:unicycle", "ppo:scara", "a2c:arm7", "a3c:arm7", "ddpg:arm7"]
 
 
-def _build(algo: str, env: str, devices: int, extra: list[str]) -> tuple[Any, dict[str, Any]]:
+def _build(algo: str, env: str, devices: int, extra: list[str], preset: str = "fast") -> tuple[Any, dict[str, Any]]:
     module = importlib.import_module("train.a2c" if algo in ("a2c", "a3c") else f"train.{algo}")
     # --chunks 10**9: one training iteration (rollout + updates; one cycle for DDPG) per chunk call
-    argv = ["--env", env, "--preset", "fast", "--devices", str(devices), "--chunks", str(10**9), *extra]
+    argv = ["--env", env, "--preset", preset, "--devices", str(devices), "--chunks", str(10**9), *extra]
     if algo in ("a2c", "a3c"):
         args = module.parse(argv, algo)
         _, trainer, config = module.build(args, algo)
@@ -53,13 +56,13 @@ def _params(state: Any) -> dict[str, np.ndarray]:
     return out
 
 
-def run_case(case: str, chunks: int, extra: list[str]) -> dict[str, Any]:
-    algo, env = case.split(":")
+def run_case(case: str, chunks: int, extra: list[str], preset: str = "fast") -> dict[str, Any]:
+    algo, env = case.split(":", 1)  # the env may hold a colon: ppo:brax:halfcheetah
     n_all = len(jax.devices())
     res: dict[str, Any] = {"case": case, "devices": [1, n_all]}
     outs = {}
     for d in (1, n_all):
-        trainer, config = _build(algo, env, d, extra)
+        trainer, config = _build(algo, env, d, extra, preset)
         init, update = jax.jit(trainer.init), jax.jit(trainer.update)
         state = init(jax.random.PRNGKey(0))
         t0 = time.perf_counter()
@@ -83,7 +86,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--cases", nargs="+", default=CASES)
     p.add_argument("--chunks", type=int, default=2)
-    p.add_argument("--extra", nargs="*", default=[], help="further flags for every case's command line")
+    p.add_argument("--extra", default="", help="further flags for every case's command line, in one quoted string")
+    p.add_argument("--preset", default="fast", help="every case's --preset (brax: a brax task's, e.g. ppo:brax:reacher)")
     p.add_argument("--out", default=RESULTS)
     provenance.add_args(p)
     args = p.parse_args(argv)
@@ -92,7 +96,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     rows = []
     for case in args.cases:
         try:
-            r = run_case(case, args.chunks, args.extra)
+            r = run_case(case, args.chunks, shlex.split(args.extra), args.preset)
         except Exception as e:  # one failing case is recorded, the others still run
             r = {"case": case, "error": repr(e)[:600]}
         rows.append(r)

@@ -170,6 +170,21 @@ def test_too_few_evaluations_is_a_one_line_error(capsys):
     assert "--evals 1: at least 2" in capsys.readouterr().err.strip().splitlines()[-1]
 
 
+def test_devices_beyond_the_machine_s_or_a_vmap_over_several_are_one_line_errors(capsys):
+    import jax
+
+    n = jax.device_count()
+    for argv, message in ((["--devices", str(n + 1)], f"--devices {n + 1}: this machine has {n}"),
+                          (["--devices", "-1"], "--devices -1: this machine has")):  # fmt: skip
+        try:
+            brax_tasks.main(["--tasks", "inverted_pendulum", *argv])
+        except SystemExit as e:
+            assert e.code == 2
+        else:
+            raise AssertionError(f"{argv} must stop the benchmark")
+        assert message in capsys.readouterr().err.strip().splitlines()[-1]
+
+
 def test_action_wrappers_hand_the_env_the_clipped_or_squashed_action_and_brax_s_preset_squashes():
     import jax.numpy as jnp
 
