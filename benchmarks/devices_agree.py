@@ -87,7 +87,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--cases", nargs="+", default=CASES)
     p.add_argument("--chunks", type=int, default=2)
     p.add_argument("--extra", default="", help="further flags for every case's command line, in one quoted string")
-    p.add_argument("--preset", default="fast", help="every case's --preset (brax: a brax task's, e.g. ppo:brax:reacher)")
+    p.add_argument("--preset", default="fast", help="every case's --preset (brax: a brax task's)")
     p.add_argument("--out", default=RESULTS)
     provenance.add_args(p)
     args = p.parse_args(argv)
