@@ -7,7 +7,7 @@ return at equal env steps, wall time, steps/s.
     python -m benchmarks.brax_tasks --algo td3 --tasks hopper --steps 1000000   # off-policy: brax's SAC beside
     python -m benchmarks.brax_tasks --tasks halfcheetah --no-brax --ours activation=swish state_std=true \
         tanh_actions=true clip_actions=false                           # brax's policy parametrisation
-    python -m benchmarks.brax_tasks --tasks halfcheetah --ours segments=true   # brax's update (advantage_segment)
+    python -m benchmarks.brax_tasks --tasks hopper --ours segments=true   # brax's update (advantage_segment)
 
 Off-policy (``--algo td3`` or ``ddpg``): the tasks brax trains with SAC (:data:`train.presets.BRAX_SAC`,
 hopper and walker2d), brax's ``sac.train`` with the row as it is, ours through
@@ -102,11 +102,12 @@ def our_config(algo: str, task: str, action_size: int, row: dict[str, float], st
                overrides: dict[str, Any] | None = None) -> Any:  # fmt: skip
     """Our validated config of ``algo`` for the task's ``row`` and ``steps`` env steps, with ``overrides``
     (fields of :class:`PPOConfig` or :class:`DDPGConfig`) over it; ``ConfigError`` naming a bad one.
-    PPO's ``segments=True`` among them builds the config with brax's own update
-    (:func:`train.presets.brax_ppo_config`'s ``segments``)."""
+    PPO's ``segments=true|false`` among them picks brax's own update or the thesis's
+    (:func:`train.presets.brax_ppo_config`'s ``segments``; by default the task's preset)."""
     overrides = dict(overrides or {})
     if algo == "ppo":
-        config = brax_ppo_config(task, action_size, bool(overrides.pop("segments", False)), **row)
+        segments = overrides.pop("segments", None)  # None: the task's preset
+        config = brax_ppo_config(task, action_size, None if segments is None else bool(segments), **row)
     else:
         config = brax_sac_ddpg_config(task, **row)
         config = config.replace(**TD3_SETTINGS) if algo == "td3" else config
@@ -292,6 +293,13 @@ def summary(runs: list[dict[str, Any]]) -> dict[str, Any]:
             "curve_steps": runs[0]["curve_steps"], "curves": [r["curve"] for r in runs]}  # fmt: skip
 
 
+def return_ratio(ours: float, brax: float) -> float:
+    """Ours over brax's, or brax's over ours where brax's is negative (a cost): above 1 where ours is ahead."""
+    if not brax or not ours:
+        return float("nan")
+    return ours / brax if brax > 0 else brax / ours
+
+
 def to_markdown(result: dict[str, Any]) -> str:
     name, peer, _ = ALGOS[result.get("algo", "ppo")]
     table = "BRAX_PPO" if peer == "ppo" else "BRAX_SAC"
@@ -305,7 +313,8 @@ def to_markdown(result: dict[str, Any]) -> str:
            + (f" Merged from {len(result['sources'])} invocations (`--merge`; each one's provenance below)."
               if result.get("merged_from") else ""), "",
            "| task | env steps | brax return | our return, same mode | our return, mean action "
-           "| brax wall per seed s | our wall per seed s | brax env steps/s | our env steps/s | our / brax return |",
+           "| brax wall per seed s | our wall per seed s | brax env steps/s | our env steps/s "
+           "| return ratio (> 1: ours ahead) |",
            "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
     words = {"stochastic": "sampled", "deterministic": "mean action"}
     for t in result["tasks"]:
@@ -316,8 +325,9 @@ def to_markdown(result: dict[str, Any]) -> str:
         whole = not (b.get("cut") or o.get("cut"))  # a side cut short is not compared
         won, fast = whole and ro >= rb, whole and o["wall_per_seed_s"] <= b["wall_per_seed_s"]
         cell = f"{ro:.1f} ± {np.std(same):.1f}" if same else "not measured"
-        cell += f" (cut at {o['env_steps']:,} steps)" if o.get("cut") else ""
-        mean_cell = f"{np.mean(mean):.1f} ± {np.std(mean):.1f}" if mean else "not measured"
+        cut = f" (cut at {o['env_steps']:,} steps)" if o.get("cut") else ""
+        cell += cut
+        mean_cell = f"{np.mean(mean):.1f} ± {np.std(mean):.1f}{cut}" if mean else "not measured"
         wall = f"{o['wall_per_seed_s']:.0f}"
         short = len(b["returns"]) < result["brax_seeds"] and not np.isnan(rb)  # a killed run: the seeds it finished
         seeds_done = f" ({len(b['returns'])} of {result['brax_seeds']} seeds)" if short else ""
@@ -327,7 +337,7 @@ def to_markdown(result: dict[str, Any]) -> str:
                    f"{seeds_done} | {'**' + cell + '**' if won else cell} | {mean_cell} "
                    f"| {b['wall_per_seed_s']:.0f} | {'**' + wall + '**' if fast else wall} "
                    f"| {b['env_steps_per_s']:,.0f} | {o['env_steps_per_s']:,.0f} "
-                   f"| {ro / rb if rb else float('nan'):.2f} |")  # fmt: skip
+                   f"| {return_ratio(ro, rb):.2f} |")  # fmt: skip
     out.append("")
     if result.get("note"):
         out += [result["note"], ""]
@@ -439,6 +449,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         row = {"task": task, "settings": settings, "sides": []}
         result["tasks"].append(row)
         if not args.no_ours:
+            row["sides"].append("ours")  # before it runs: a run cut short keeps its evaluations so far
 
             def ours_so_far(record: dict[str, Any], row: dict[str, Any] = row) -> None:  # a killed run keeps it
                 row["ours"] = record
@@ -447,7 +458,6 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             row["ours"] = ours(env, task, settings, our_steps, args.seeds, args.eval_episodes, args.seed_map,
                                args.algo, args.eval_mode, overrides, args.evals, ours_so_far,
                                args.devices)  # fmt: skip
-            row["sides"].append("ours")
             print(task, "ours", [round(r, 1) for r in row["ours"]["returns"]], f"{row['ours']['wall_s']:.0f} s",
                   flush=True)  # fmt: skip
         if not args.no_brax:
@@ -524,13 +534,14 @@ def merge(paths: list[str], out: str, argv: list[str] | None = None, label: str 
     for part in parts:
         for row in part["tasks"]:
             merged = tasks.setdefault(row["task"], {"task": row["task"], "settings": row["settings"], "sides": []})
-            for side in row.get("sides", ("ours", "brax")):
+            # the sides a row holds (files from before a killed side was listed: the records present)
+            for side in row.get("sides") or [name for name in ("ours", "brax") if name in row]:
                 joins = side == "brax" and side in merged
                 merged[side] = join_seeds(merged[side], row[side]) if joins else row[side]
                 merged["sides"] = sorted(set(merged["sides"]) | {side}, reverse=True)
     for part, path in zip(parts, paths, strict=True):
         part["provenance"].setdefault("note", f"merged from {os.path.basename(path)}")
-    ran_ours = [p for p in parts if any("ours" in r.get("sides", ("ours",)) for r in p["tasks"])]
+    ran_ours = [p for p in parts if any("ours" in (r.get("sides") or r) for r in p["tasks"])]
     named = (ran_ours or parts)[-1]  # the file is named after the device our side last ran on
     stem = stem_of(out, named["device"], first.get("algo", "ppo"), label)
     prov = provenance.record("benchmarks.brax_tasks", argv, device_info=named["provenance"]["device"],

@@ -128,7 +128,8 @@ def test_a_side_cut_short_shows_its_steps_and_is_not_compared(tmp_path):
     brax = _part(tmp_path, "brax", "brax", [900.0], 50.0, **sampled)
     brax_tasks.main(["--merge", ours, brax, "--out", str(tmp_path / "a")])
     md = (tmp_path / "a" / "gpu-x-brax_tasks.md").read_text()
-    assert "| 900.0 ± 0.0 (sampled) | 1000.0 ± 0.0 (cut at 300 steps) | 1000.0 ± 0.0 | 50 | 10 |" in md
+    cut = "1000.0 ± 0.0 (cut at 300 steps)"
+    assert f"| 900.0 ± 0.0 (sampled) | {cut} | {cut} | 50 | 10 |" in md
     brax_tasks.main(["--merge", ours, "--out", str(tmp_path / "alone")])  # brax's side not run: not "cut"
     md = (tmp_path / "alone" / "gpu-x-brax_tasks.md").read_text()
     assert "| nan ± nan | 1000.0 ± 0.0 (cut at 300 steps) |" in md
@@ -158,6 +159,33 @@ def test_brax_s_side_reports_its_first_seed_as_it_goes_then_each_seed(monkeypatc
     assert [(w["env_steps"], w.get("cut", False), w["seed_ids"]) for w in written] == [
         (0, True, [4]), (50, True, [4]), (100, True, [4]), (100, False, [4]), (100, False, [4, 5])]
     assert last == written[-1] and last["returns"] == [42.0, 52.0] and last["curves"][1] == [50.0, 51.0, 52.0]
+
+
+def test_our_side_killed_after_an_evaluation_is_merged_as_cut(monkeypatch, tmp_path):
+    """The file our side leaves when a time limit kills it after its first evaluation names our side, so a
+    merge of it beside brax's shows the evaluations so far (cut), not a side that never ran."""
+
+    def killed(env, task, row, steps, seeds, *args):
+        done = args[6]
+        done({"returns": [5.0], "eval_mode": "deterministic", "returns_deterministic": [5.0], "wall_s": 2.0,
+              "wall_per_seed_s": 2.0, "env_steps": 64, "env_steps_per_s": 32.0, "curve_steps": [0, 64],
+              "curves": [[1.0, 5.0]], "overrides": {}, "cut": True})  # fmt: skip
+        raise KeyboardInterrupt  # the time limit
+
+    monkeypatch.setattr(brax_tasks, "ours", killed)
+    out = tmp_path / "ours"
+    try:
+        brax_tasks.main(["--algo", "td3", "--tasks", "walker2d", "--no-brax", "--steps", "128", "--seeds", "1",
+                         "--out", str(out), "--label", "x"])  # fmt: skip
+    except KeyboardInterrupt:
+        pass
+    part = str(out / f"{brax_tasks.device_label()}-brax_tasks-td3-x.json")
+    with open(part) as f:
+        assert json.load(f)["tasks"][0]["sides"] == ["ours"]
+    result = brax_tasks.main(["--merge", part, "--out", str(tmp_path / "merged")])
+    assert result["tasks"][0]["ours"]["curves"] == [[1.0, 5.0]]
+    with open(tmp_path / "merged" / f"{brax_tasks.device_label()}-brax_tasks-td3.md") as f:
+        assert "5.0 ± 0.0 (cut at 64 steps)" in f.read()
 
 
 def test_too_few_evaluations_is_a_one_line_error(capsys):
@@ -206,6 +234,12 @@ def test_action_wrappers_hand_the_env_the_clipped_or_squashed_action_and_brax_s_
     squash = TanhActionWrapper(Echo())
     out = squash.step(squash.reset(None), jnp.array([-3.0, 0.25, 0.0]))
     np.testing.assert_allclose(out.obs, [-0.99505475, 0.24491866, 0.0], rtol=1e-6)  # tanh by hand
+
+
+def test_the_return_ratio_is_above_one_where_ours_is_ahead_for_rewards_and_costs():
+    assert brax_tasks.return_ratio(1800.0, 1200.0) == 1.5 and brax_tasks.return_ratio(600.0, 1200.0) == 0.5
+    assert brax_tasks.return_ratio(-20.0, -25.0) == 1.25 and brax_tasks.return_ratio(-25.0, -20.0) == 0.8
+    assert np.isnan(brax_tasks.return_ratio(5.0, 0.0))
 
 
 def test_eval_points_spread_brax_s_ten_evaluations_over_the_updates():

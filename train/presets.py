@@ -32,6 +32,7 @@ from jaxrl_robot.agents.ppo import PPOConfig
 __all__ = [
     "BRAX_COLUMNS",
     "BRAX_PPO",
+    "BRAX_PPO_SEGMENTS",
     "BRAX_SAC",
     "BRAX_SAC_COLUMNS",
     "a2c_preset",
@@ -79,36 +80,41 @@ BRAX_PPO: dict[str, dict[str, float]] = {
 """brax's PPO settings per brax task, in brax's terms (converted by :func:`brax_ppo_config`)."""
 
 
-def brax_ppo_config(task: str, action_size: int, segments: bool = False, **row: float) -> PPOConfig:
+def brax_ppo_config(task: str, action_size: int, segments: bool | None = None, **row: float) -> PPOConfig:
     """The :class:`PPOConfig` of ``BRAX_PPO[task]``, its entries updated by ``row`` (``KeyError``
     naming the tasks for an unknown one).
-
-    ``segments``: brax's own update instead (not yet compared with brax on a GPU) — mini-batches of
-    ``batch_size`` unrolls of ``unroll_length`` steps drawn from all lanes, advantages and value targets
-    recomputed on each with the current critic (``advantage_segment``), actor and critic stepping together
-    ``num_updates_per_batch · num_minibatches`` times per batch.
 
     brax collects ``batch_size · num_minibatches`` unrolls of ``unroll_length`` steps per training
     step and makes ``num_updates_per_batch`` passes of ``num_minibatches`` mini-batches over them.
     Here one iteration is ``num_envs`` lanes × ``unroll_length`` (N) steps, so N = those unrolls per
-    lane × ``unroll_length``; a mini-batch holds ``batch_size · unroll_length`` transitions rounded
-    down to a multiple of the lanes (B / K from every lane); actor and critic each take as many steps
-    as brax's passes cover. The networks and the policy are brax's (``make_ppo_networks`` defaults:
+    lane × ``unroll_length``. The networks and the policy are brax's (``make_ppo_networks`` defaults:
     policy 4 × 32 and value 5 × 256 with swish, no batch-norm; the action is ``tanh`` of a Gaussian
     sample whose σ(s) = softplus(·) + 0.001 comes from an output layer of the policy, starting at
     softplus(0) ≈ 0.7, with the squashed action's entropy), clip ε 0.3 and GAE λ 0.95 (brax's
-    defaults), normalised observations and advantages, one Adam learning rate for both. The critic
-    trains on each batch before the actor (``critic_first``), which brings the advantages nearer to
-    brax's, recomputed with the critic of every mini-batch: at 5 M env steps, 3 seeds, sampled
-    actions, this policy with critic_first (one H100) against the state-independent σ with clipped
-    actions (an H200) — halfcheetah 1295 ± 79 against 1035 ± 75, reacher −22.6 ± 0.7 against −92.5 ± 0.2,
-    inverted_pendulum 1000 against 981 (``benchmarks/results/*brax_tasks-5M-brax-policy*``); hopper
-    492 ± 89 against brax's own PPO's 425 ± 87 on the same H200 (``*brax_tasks-5M-hopper*``);
-    inverted_double_pendulum 9169 ± 212 against brax's 2218 ± 1437 on the same H100 (``*brax_tasks-5M-idp*``).
+    defaults), normalised observations and advantages, one Adam learning rate for both.
+
+    Two updates (``segments``; None: the task's entry of :data:`BRAX_PPO_SEGMENTS`):
+
+    * ``segments=True``, brax's own update: mini-batches of ``batch_size`` unrolls of ``unroll_length``
+      steps drawn from all lanes, advantages and value targets recomputed on each with the current
+      critic (``advantage_segment``), actor and critic stepping together ``num_updates_per_batch ·
+      num_minibatches`` times per batch.
+    * ``segments=False``, the thesis's update (Algorithm 8): advantages once per batch, a mini-batch
+      holds ``batch_size · unroll_length`` transitions rounded down to a multiple of the lanes (B / K
+      from every lane); actor and critic each take as many steps as brax's passes cover, the critic
+      on each batch first (``critic_first``), which brings the advantages nearer to brax's.
+
+    Measured at 5 M env steps, 3 seeds, sampled actions, against brax's own PPO
+    (``benchmarks/results/*brax_tasks-5M*``): brax's update — halfcheetah 1858 ± 272 against 1704 ±
+    316, reacher −20.7 ± 0.7 against −20.5 ± 1.0 (both on H200s; the thesis's update: 1295 ± 79 and
+    −22.6 ± 0.7); the thesis's update — hopper 492 ± 89 against 425 ± 87 (brax's update: 363 ± 16),
+    inverted_double_pendulum 9169 ± 212 against 2218 ± 1437 (brax's update: 4133 ± 1697),
+    inverted_pendulum 1000 on every side.
     """
     if task not in BRAX_PPO:
         raise KeyError(f"no brax PPO settings for {task!r}; known: {', '.join(BRAX_PPO)}")
     b = {**BRAX_PPO[task], **row}
+    segments = task in BRAX_PPO_SEGMENTS if segments is None else segments
     lanes = int(b["num_envs"])
     unrolls = max(1, int(b["batch_size"] * b["num_minibatches"]) // lanes)
     n = unrolls * int(b["unroll_length"])
@@ -132,6 +138,10 @@ def brax_ppo_config(task: str, action_size: int, segments: bool = False, **row: 
     )  # fmt: skip
     return config.replace(**brax_update)
 
+
+BRAX_PPO_SEGMENTS = ("halfcheetah", "reacher")
+"""The tasks whose ``brax`` preset trains with brax's own update (:func:`brax_ppo_config`'s
+``segments``), ahead of the thesis's update there; the others are ahead with the thesis's."""
 
 BRAX_SAC_COLUMNS = ("num_timesteps", "num_envs", "batch_size", "grad_updates_per_step", "discounting",
                     "reward_scaling", "learning_rate", "episode_length", "max_replay_size", "min_replay_size")
@@ -297,7 +307,7 @@ def ppo_preset(
       trajectory: the unicycle's trajectory for the env overrides (None: the env's default).
     """
     env_overrides = ppo_env_overrides(resolve_preset(name, env_name), env_name, pretrain, policy, trajectory)
-    config = _ppo_base_preset(name, env_name, episode_length, action_size)
+    config = _ppo_base_preset(name, env_name, episode_length, action_size, policy == "mlp" and pretrain == "none")
     if policy == "lstm":
         config = lstm_variant(config, resolve_preset(name), _family(env_name))
     if pretrain != "none":
@@ -313,11 +323,16 @@ def lstm_variant(config: PPOConfig, name: str, family: str) -> PPOConfig:
     unicycle (a_p = 300, H100, 3 seeds) the x / y / θ sums went from 2.74 / 2.66 / 0.49 at 30 M steps
     to 1.49 / 1.22 / 0.33 at 60 M on the sine, and from 1.28 / 0.99 / 0.62 to 0.46 / 0.44 / 0.29 on
     the ellipse (``benchmarks/results/gpu-nvidia_h100_80gb_hbm3-tracking_sharper_rewards.md``)."""
-    lanes, unroll, minibatch = {"thesis": (4, 40, 40), "cpu": (32, 40, 320), "fast": (4096, 20, 40960)}[name]
+    if name == "brax":  # brax's lanes and unrolls (whole sequences), each sequence in two of the 8 updates
+        lanes, unroll = config.num_envs, max(10, config.unroll_length // 10 * 10)
+        minibatch = lanes * 10 * max(1, unroll // 40)
+        config = config.replace(tanh_actions=False, clip_actions=True, state_std=False, activation="relu")
+    else:
+        lanes, unroll, minibatch = {"thesis": (4, 40, 40), "cpu": (32, 40, 320), "fast": (4096, 20, 40960)}[name]
     config = config.replace(
         policy="lstm", actor_hidden=(256,), critic_hidden=(256,), lstm_size=256, seq_length=10, batch_norm=False,
         num_envs=lanes, unroll_length=unroll, minibatch_size=minibatch, actor_updates=8, critic_updates=8,
-        total_steps=config.total_steps * (2 if name == "fast" and family == "tracking" else 1),
+        total_steps=config.total_steps * (2 if name == "fast" and family == "tracking" else 1), advantage_segment=0,
     )  # fmt: skip
     if family == "tracking":
         config = config.replace(schedule=tracking_schedule(2 / 3, 0.8, 14 / 15))
@@ -331,12 +346,15 @@ def two_stage_variant(config: PPOConfig, name: str, episode_length: int) -> PPOC
     return config.replace(pretrain_episodes=200, total_steps=pretrain + (2 * config.total_steps) // 3)
 
 
-def _ppo_base_preset(name: str, env_name: str, episode_length: int, action_size: int) -> PPOConfig:
-    """The feed-forward PPO preset (see :func:`ppo_preset`)."""
+def _ppo_base_preset(name: str, env_name: str, episode_length: int, action_size: int,
+                     segments: bool = True) -> PPOConfig:  # fmt: skip
+    """The feed-forward PPO preset (see :func:`ppo_preset`); ``segments=False``: the ``brax`` preset
+    without brax's own update (which needs the feed-forward policy and no pre-training)."""
     name = resolve_preset(name, env_name)
     family = _family(env_name)
     if name == "brax":
-        return brax_ppo_config(brax_task(env_name) or "inverted_pendulum", action_size)
+        task = brax_task(env_name) or "inverted_pendulum"
+        return brax_ppo_config(task, action_size, None if segments else False)
     if family == "arm":
         # Table 5.2 and §5.4: 2 x 200 nets, batch-norm actor, σ = [0.8, 0.8, 0.1].
         base = PPOConfig(

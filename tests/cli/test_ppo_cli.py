@@ -314,8 +314,16 @@ def test_brax_preset_converts_brax_settings_and_auto_picks_it(capsys):
     assert (c.gamma, c.entropy_coef, c.reward_scale, c.clip_eps, c.total_steps) == (0.97, 0.01, 10.0, 0.3, 2_000_000)
     assert c.normalize_obs and c.learn_std and not c.batch_norm and c.actor_lr == c.critic_lr == 3e-4
     assert c.state_std and c.tanh_actions and c.activation == "swish" and c.critic_first  # brax's policy
+    assert c.advantage_segment == 0  # the thesis's update on inverted_pendulum, brax's on halfcheetah
     hc = presets.brax_ppo_config("halfcheetah", 6)
     assert (hc.unroll_length, hc.minibatch_size, hc.actor_updates, hc.gamma) == (160, 10240, 256, 0.95)
+    assert (hc.advantage_segment, hc.critic_first) == (20, False)
+    thesis = presets.brax_ppo_config("halfcheetah", 6, segments=False)
+    assert (thesis.advantage_segment, thesis.critic_first, thesis.minibatch_size) == (0, True, 10240)
+    # the recurrent policy: the thesis's update over brax's lanes, whole sequences of 10 in each unroll
+    lstm = ppo_cli.parse(["--env", "brax:halfcheetah", "--policy", "lstm"]).ppo.validate()
+    assert (lstm.policy, lstm.advantage_segment, lstm.num_envs, lstm.unroll_length) == ("lstm", 0, 2048, 160)
+    assert lstm.minibatch_size == 2048 * 10 * 4 and not lstm.tanh_actions and lstm.activation == "relu"
     # benchmarks.brax_tasks --num-envs 64: the batch scales with the envs, the per-lane structure stays
     small = presets.brax_ppo_config("inverted_pendulum", 1, **brax_tasks.brax_row("inverted_pendulum", 64))
     assert (small.num_envs, small.unroll_length, small.minibatch_size, small.actor_updates) == (64, 80, 128, 160)
