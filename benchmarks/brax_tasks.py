@@ -8,6 +8,7 @@ return at equal env steps, wall time, steps/s.
     python -m benchmarks.brax_tasks --tasks halfcheetah --no-brax --ours activation=swish state_std=true \
         tanh_actions=true clip_actions=false                           # brax's policy parametrisation
     python -m benchmarks.brax_tasks --tasks hopper --ours segments=true   # brax's update (advantage_segment)
+    python -m benchmarks.brax_tasks --tasks reacher --no-brax --devices 2 --seed-map loop   # each seed on 2 GPUs
 
 Off-policy (``--algo td3`` or ``ddpg``): the tasks brax trains with SAC (:data:`train.presets.BRAX_SAC`,
 hopper and walker2d), brax's ``sac.train`` with the row as it is, ours through

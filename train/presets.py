@@ -322,7 +322,9 @@ def lstm_variant(config: PPOConfig, name: str, family: str) -> PPOConfig:
     200 of 3000 episodes from ``t = 0``; under ``fast`` twice the feed-forward budget: on the
     unicycle (a_p = 300, H100, 3 seeds) the x / y / θ sums went from 2.74 / 2.66 / 0.49 at 30 M steps
     to 1.49 / 1.22 / 0.33 at 60 M on the sine, and from 1.28 / 0.99 / 0.62 to 0.46 / 0.44 / 0.29 on
-    the ellipse (``benchmarks/results/gpu-nvidia_h100_80gb_hbm3-tracking_sharper_rewards.md``)."""
+    the ellipse (``benchmarks/results/gpu-nvidia_h100_80gb_hbm3-tracking_sharper_rewards.md``).
+    ``brax``: the task's lanes and unrolls (whole sequences), the recurrent policy's clipped actions
+    and relu (it has neither the squashed action nor a σ from the state)."""
     if name == "brax":  # brax's lanes and unrolls (whole sequences), each sequence in two of the 8 updates
         lanes, unroll = config.num_envs, max(10, config.unroll_length // 10 * 10)
         minibatch = lanes * 10 * max(1, unroll // 40)
