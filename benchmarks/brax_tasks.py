@@ -25,8 +25,9 @@ default) for the same env steps with the settings of :data:`train.presets.BRAX_P
 program called per seed (``--seed-map vmap``: one vmapped program), brax's one after another.
 
 * **return**: brax: its own final evaluation (``eval/episode_reward``, 128 episodes of
-  ``episode_length`` steps) of its policy's sampled actions (brax's default) or, with ``--eval-mode
-  deterministic``, of its mean action (``deterministic_eval``); ours: ``--eval-episodes`` fresh episodes
+  ``episode_length`` steps) of its policy's sampled actions (brax's default; PPO's unless
+  ``--eval-mode`` says otherwise) or, with ``--eval-mode deterministic`` (TD3's and DDPG's default), of
+  its mean action (``deterministic_eval``); ours: ``--eval-episodes`` fresh episodes
   of the same length (:func:`jaxrl_robot.evaluation.run_test_episodes`) in the same mode
   (``Trainer.sample_policy`` for sampled actions; TD3 and DDPG have only their deterministic policy), and
   with the mean action beside it (both modes' episodes in one rollout,
@@ -130,6 +131,12 @@ def our_trainer(algo: str, task: str, env: Any, row: dict[str, float], steps: in
 
 EVAL_MODES = ("stochastic", "deterministic")
 """How the final evaluation acts: the policy's sampled actions (brax's default) or its mean action."""
+
+
+def default_eval_mode(algo: str) -> str:
+    """``--eval-mode`` unless given: PPO's sampled actions (brax's default); for TD3 and DDPG, whose only
+    policy is deterministic, the mean action on both sides (brax's SAC with ``deterministic_eval``)."""
+    return "stochastic" if algo == "ppo" else "deterministic"
 
 
 def eval_mode(side: dict[str, Any], name: str) -> str:
@@ -385,9 +392,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--evals", type=int, default=10,
                    help="evaluations of each side along training, the first before it (brax's num_evals; at "
                    "least 2); fewer cost less where they take much of a short run")  # fmt: skip
-    p.add_argument("--eval-mode", default="stochastic", choices=EVAL_MODES,
-                   help="final evaluation of both sides: sampled actions (brax's default) or the mean action; "
-                   "ours is also evaluated with its mean action either way")  # fmt: skip
+    p.add_argument("--eval-mode", default=None, choices=EVAL_MODES,
+                   help="final evaluation of both sides: sampled actions (PPO's default, brax's) or the mean "
+                   "action (TD3's and DDPG's default: they act deterministically); ours is also evaluated "
+                   "with its mean action either way")  # fmt: skip
     p.add_argument("--num-envs", type=int, default=0, help="envs of both trainers, batch scaled alike (0: the row's)")
     p.add_argument("--row", nargs="*", default=[], metavar="KEY=VALUE",
                    help="settings of both trainers in brax's terms over the task's row (e.g. min_replay_size=1024)")
@@ -417,6 +425,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         p.error(f"--devices {args.devices}: this machine has {jax.device_count()} (0: all of them)")
     if args.seed_map == "vmap" and args.seeds > 1 and (args.devices or jax.device_count()) > 1:
         p.error(f"--seed-map vmap runs its {args.seeds} seeds on one device; add --devices 1 or --seed-map loop")
+    args.eval_mode = args.eval_mode or default_eval_mode(args.algo)
     if args.evals < 2:
         p.error(f"--evals {args.evals}: at least 2 (one before training, one at its end)")
     table = ALGOS[args.algo][2]

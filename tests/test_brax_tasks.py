@@ -167,12 +167,15 @@ def test_our_side_killed_after_an_evaluation_is_merged_as_cut(monkeypatch, tmp_p
 
     def killed(env, task, row, steps, seeds, *args):
         done = args[6]
+        assert args[3] == "deterministic"  # TD3 acts deterministically: both sides in that mode unless given
         done({"returns": [5.0], "eval_mode": "deterministic", "returns_deterministic": [5.0], "wall_s": 2.0,
               "wall_per_seed_s": 2.0, "env_steps": 64, "env_steps_per_s": 32.0, "curve_steps": [0, 64],
               "curves": [[1.0, 5.0]], "overrides": {}, "cut": True})  # fmt: skip
         raise KeyboardInterrupt  # the time limit
 
     monkeypatch.setattr(brax_tasks, "ours", killed)
+    assert brax_tasks.default_eval_mode("ppo") == "stochastic"  # brax's default for its PPO
+    assert brax_tasks.default_eval_mode("td3") == brax_tasks.default_eval_mode("ddpg") == "deterministic"
     out = tmp_path / "ours"
     try:
         brax_tasks.main(["--algo", "td3", "--tasks", "walker2d", "--no-brax", "--steps", "128", "--seeds", "1",
