@@ -201,7 +201,7 @@ def test_too_few_evaluations_is_a_one_line_error(capsys):
     assert "--evals 1: at least 2" in capsys.readouterr().err.strip().splitlines()[-1]
 
 
-def test_devices_beyond_the_machine_s_or_a_vmap_over_several_are_one_line_errors(capsys):
+def test_devices_beyond_the_machine_s_are_one_line_errors(capsys):
     import jax
 
     n = jax.device_count()

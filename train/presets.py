@@ -325,7 +325,7 @@ def lstm_variant(config: PPOConfig, name: str, family: str) -> PPOConfig:
     the ellipse (``benchmarks/results/gpu-nvidia_h100_80gb_hbm3-tracking_sharper_rewards.md``).
     ``brax``: the task's lanes and unrolls (whole sequences), the recurrent policy's clipped actions
     and relu (it has neither the squashed action nor a σ from the state)."""
-    if name == "brax":  # brax's lanes and unrolls (whole sequences), each sequence in two of the 8 updates
+    if name == "brax":  # each sequence in two of the 8 updates
         lanes, unroll = config.num_envs, max(10, config.unroll_length // 10 * 10)
         minibatch = lanes * 10 * max(1, unroll // 40)
         config = config.replace(tanh_actions=False, clip_actions=True, state_std=False, activation="relu")
@@ -334,7 +334,7 @@ def lstm_variant(config: PPOConfig, name: str, family: str) -> PPOConfig:
     config = config.replace(
         policy="lstm", actor_hidden=(256,), critic_hidden=(256,), lstm_size=256, seq_length=10, batch_norm=False,
         num_envs=lanes, unroll_length=unroll, minibatch_size=minibatch, actor_updates=8, critic_updates=8,
-        total_steps=config.total_steps * (2 if name == "fast" and family == "tracking" else 1), advantage_segment=0,
+        total_steps=config.total_steps * (2 if name == "fast" and family == "tracking" else 1),
     )  # fmt: skip
     if family == "tracking":
         config = config.replace(schedule=tracking_schedule(2 / 3, 0.8, 14 / 15))
