@@ -354,6 +354,24 @@ def test_noise_schedule_ends_at_the_greedy_action():
     np.testing.assert_allclose(gap[8:], 0.0, atol=1e-6)
 
 
+def test_random_start_acts_uniformly_until_learning_starts():
+    """``random_start``: the rows stored before ``learning_starts`` spread over [-1, 1] (mean ≈ 0, std
+    ≈ 1/√3) whatever the actor, later rows are exactly ``μ(s)`` (no noise, no updates yet)."""
+    env = ToyGoalEnv(max_steps=50, step_size=0.05)
+    cfg = _tiny(schedule="steps", total_steps=512, num_envs=8, unroll_length=8, episode_length=50, learning_starts=256,
+                buffer_size=1024, batch_size=2048, noise_scale=(0.0,), random_start=True)
+    trainer = make_trainer(cfg, env)
+    state = _trained(trainer, 8)
+    assert int(state.updates) == 0 and int(state.replay.size) == 512
+    data = state.replay.data
+    first, later = np.asarray(data.action[:256]), np.asarray(data.action[256:512])
+    assert np.abs(first).max() <= 1.0 and abs(first.mean()) < 0.05 and abs(first.std() - 3**-0.5) < 0.03
+    np.testing.assert_allclose(later, np.asarray(trainer.policy(state)(data.obs[256:512])), atol=1e-6)
+    assert later.std() < 0.05  # the untrained actor's output is near-constant (last layer ±3e-3)
+    with pytest.raises(ConfigError, match="random_start=True .* set learning_starts >= 1"):
+        _tiny(random_start=True).validate()
+
+
 def test_tracking_presets_thesis_keeps_table_3_3_and_cpu_uses_the_measured_options():
     thesis = ddpg_preset("thesis", "unicycle", 314)
     table_3_3 = (thesis.gamma, thesis.batch_size, thesis.buffer_size, thesis.tau, thesis.noise, thesis.per)

@@ -76,9 +76,10 @@ class Acting(NamedTuple):
 
     Attributes:
       reset: ``keys [b] -> (State [b], NoiseState [b, A])`` initial lanes.
-      policy: ``(lane_ids [b], actor params, obs stats, factor or None) -> LanePolicy``:
-        ``clip(μ(x) + f·ω, −1, 1)`` (Eq. 3.7) with ``x`` the normalised observation.
-      explore: the same as a function ``(key, lane_ids, params, stats, obs, noise, factor)``.
+      policy: ``(lane_ids [b], actor params, obs stats, factor or None, uniform=None) -> LanePolicy``:
+        ``clip(μ(x) + f·ω, −1, 1)`` (Eq. 3.7) with ``x`` the normalised observation; uniform random
+        actions in [−1, 1] while ``uniform`` (``[]`` bool, :func:`~jaxrl_robot.agents.ddpg.core.warming_up`) holds.
+      explore: the same as a function ``(key, lane_ids, params, stats, obs, noise, factor, uniform=None)``.
       collect: ``(key, lane_ids [b], policy, State [b], NoiseState [b], teacher=None, split=None)
         -> Collected``; ``teacher(key, State [b], action [b, A]) -> (executed action, label)``
         ('steps' only, the imitation stage of :mod:`~jaxrl_robot.agents.ddpg.imitation`) labels
@@ -139,16 +140,25 @@ def make_acting(
 
     def explore(
         key: jax.Array, lane_ids: jax.Array, params: Any, stats: RunningStats, obs: jax.Array, nstate: NoiseState,
-        factor: jax.Array | None,
+        factor: jax.Array | None, uniform: jax.Array | None = None,
     ) -> tuple[jax.Array, NoiseState]:
-        """``a = clip(μ(s) + f·ω, -1, 1)`` for the lanes ``lane_ids [b]``: raw ``[b, O] -> [b, A]``."""
+        """``a = clip(μ(s) + f·ω, -1, 1)`` for the lanes ``lane_ids [b]``: raw ``[b, O] -> [b, A]``;
+        where ``uniform`` (a ``[]`` bool) is set, ``a ~ U[-1, 1]`` instead (the noise still advances)."""
         eps, nstate = jax.vmap(noise.sample)(per_lane_keys(key, lane_ids), nstate)
         if factor is not None:
             eps = factor * eps
-        return jnp.clip(act(params, norm(stats, obs)) + eps, -1.0, 1.0), nstate
+        a = jnp.clip(act(params, norm(stats, obs)) + eps, -1.0, 1.0)
+        if uniform is not None:
+            keys = per_lane_keys(jax.random.fold_in(key, 1), lane_ids)
+            u = jax.vmap(lambda k: jax.random.uniform(k, a.shape[1:], a.dtype, -1.0, 1.0))(keys)
+            a = jnp.where(uniform, u, a)
+        return a, nstate
 
-    def policy(lane_ids: jax.Array, params: Any, stats: RunningStats, factor: jax.Array | None) -> LanePolicy:
-        return lambda key, obs, nstate: explore(key, lane_ids, params, stats, obs, nstate, factor)
+    def policy(
+        lane_ids: jax.Array, params: Any, stats: RunningStats, factor: jax.Array | None,
+        uniform: jax.Array | None = None,
+    ) -> LanePolicy:
+        return lambda key, obs, nstate: explore(key, lane_ids, params, stats, obs, nstate, factor, uniform)
 
     def terminal(ns: State) -> jax.Array:
         """``d [b]``: 1 where the step ended the episode other than by the time limit (and, with

@@ -52,6 +52,11 @@ class DDPGConfig:
     """'steps' schedule: gradient updates after each unroll."""
     learning_starts: int = 0
     """No updates until this many transitions are stored (at least one batch is always required)."""
+    random_start: bool = False
+    """Until ``learning_starts`` transitions are stored, every lane acts uniformly at random in
+    [−1, 1] instead of ``μ(s) + ω`` (the start steps of TD3 and Stable-Baselines3's off-policy
+    methods): the first memory then spans the action space rather than the untrained actor's
+    near-constant output.  False: the actor with its noise from the first step (Algorithm 1)."""
     num_envs: int = 16
     """Parallel lanes: episodes per cycle ('episodes') or continuously running envs ('steps')."""
     episode_length: int = 0
@@ -245,6 +250,9 @@ class DDPGConfig:
             if int(getattr(self, name)) != getattr(self, name):
                 raise ConfigError(f"{name}={getattr(self, name)!r} must be an integer")
         check_range("learning_starts", self.learning_starts, 0)
+        if self.random_start and self.learning_starts < 1:
+            raise ConfigError("random_start=True acts at random until learning_starts transitions are stored; "
+                              "set learning_starts >= 1")
         check_range("episode_length", self.episode_length, 0)
         check_range("actor_lr", self.actor_lr, 0.0, lo_open=True)
         check_range("critic_lr", self.critic_lr, 0.0, lo_open=True)

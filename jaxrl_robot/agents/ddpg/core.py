@@ -48,6 +48,7 @@ __all__ = [
     "setup",
     "state_specs",
     "store",
+    "warming_up",
 ]
 
 GOAL_API = ("achieved_goal", "desired_goal", "compute_reward", "sample_goal", "in_feasible_region", "obs_from")
@@ -265,6 +266,14 @@ def state_specs(cls: type = DDPGState, **extra: Any) -> Any:
     split = {"env_state", "noise_state"}
     specs = {name: lanes if name in split else same for name in DDPGState.__dataclass_fields__}
     return cls(**specs, **extra)
+
+
+def warming_up(config: DDPGConfig, state: DDPGState) -> jax.Array | None:
+    """``[]`` bool: the lanes act uniformly at random now (``random_start``, fewer than ``learning_starts``
+    transitions stored); None without ``random_start``."""
+    if not config.random_start:
+        return None
+    return state.replay.size < config.learning_starts
 
 
 def noise_factor(config: DDPGConfig, iteration: jax.Array) -> jax.Array | None:

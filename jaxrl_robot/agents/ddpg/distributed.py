@@ -186,13 +186,15 @@ def make_distributed_trainer(config: DDPGConfig, env: Env, **options: Any) -> Tr
                           fetched=jnp.where(due, t, col.fetched))
         return col, t - col.fetched
 
-    def group_policy(lane_ids: jax.Array, col: Collectors, factors: jax.Array | None) -> LanePolicy:
+    def group_policy(
+        lane_ids: jax.Array, col: Collectors, factors: jax.Array | None, uniform: jax.Array | None
+    ) -> LanePolicy:
         """Each collector acts in its lanes with its own copy: ``explore`` vmapped over this device's collectors."""
         n = local_collectors
 
         def policy(key: jax.Array, obs: jax.Array, nstate: NoiseState) -> tuple[jax.Array, NoiseState]:
             def one(ids, params, stats, o, ns, f):
-                return s.acting.explore(key, ids, params, stats, o, ns, f)
+                return s.acting.explore(key, ids, params, stats, o, ns, f, uniform)
 
             grouped = jax.tree.map(lambda x: _groups(x, n), (lane_ids, obs, nstate))
             a, nstate = jax.vmap(one)(grouped[0], col.actor_params, col.obs_stats, grouped[1], grouped[2], factors)
@@ -218,7 +220,8 @@ def make_distributed_trainer(config: DDPGConfig, env: Env, **options: Any) -> Tr
     def iteration(state: DistributedDDPGState, ids: dict[str, jax.Array]) -> tuple[DistributedDDPGState, tuple]:
         key, k_act, k_learn = jax.random.split(state.key, 3)
         factor = core.noise_factor(config, state.iteration)
-        policy = s.acting.policy(ids["lanes"], state.actor_params, state.obs_stats, factor)
+        uniform = core.warming_up(config, state)
+        policy = s.acting.policy(ids["lanes"], state.actor_params, state.obs_stats, factor, uniform)
         if C:
             # Both kinds of worker step as one batch of lanes (one env step per time step, not
             # two); lane ids, and so every lane's randomness, are as if each kind acted alone.
@@ -226,7 +229,7 @@ def make_distributed_trainer(config: DDPGConfig, env: Env, **options: Any) -> Tr
             factors = noise_factors[ids["collectors"]]
             factors = factors if factor is None else factors * factor
             n = s.local_lanes
-            both = both_policy(policy, group_policy(ids["collect_lanes"], col, factors), n)
+            both = both_policy(policy, group_policy(ids["collect_lanes"], col, factors, uniform), n)
             env_state, noise_state = _concat((state.env_state, state.noise_state), (col.env_state, col.noise_state))
             both_got = s.acting.collect(k_act, jnp.concatenate([ids["lanes"], ids["collect_lanes"]]), both,
                                         env_state, noise_state, split=n)  # fmt: skip

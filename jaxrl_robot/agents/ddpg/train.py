@@ -85,7 +85,7 @@ def make_trainer(
             imitating = imitation.active(state.iteration)
             factor = jnp.where(imitating, 0.0, 1.0 if factor is None else factor)  # no noise while imitating
             teacher = imitation.teacher(lane_ids, state.iteration)
-        policy = s.acting.policy(lane_ids, state.actor_params, state.obs_stats, factor)
+        policy = s.acting.policy(lane_ids, state.actor_params, state.obs_stats, factor, core.warming_up(config, state))
         got = s.acting.collect(k_act, lane_ids, policy, state.env_state, state.noise_state, teacher)
         rows, mask = s.acting.gather(got.rows, got.mask)
         state = core.store(s, state.replace(env_state=got.env_state, noise_state=got.noise_state), rows, mask)
