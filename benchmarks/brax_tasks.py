@@ -12,9 +12,10 @@ return at equal env steps, wall time, steps/s.
 
 Off-policy (``--algo td3`` or ``ddpg``): the tasks brax trains with SAC (:data:`train.presets.BRAX_SAC`,
 hopper and walker2d), brax's ``sac.train`` with the row as it is, ours through
-:func:`train.presets.brax_sac_ddpg_config`. Both make ``grad_updates_per_step`` updates per
-``num_envs`` env steps, so at equal env steps they learn from the same data, at a wall time that the
-updates dominate: where env steps are cheap (thousands of simulated lanes) PPO's budget of 10–50 M
+:func:`train.presets.brax_sac_ddpg_config`: the same envs, memory, discount and reward scaling, with
+TD3's own update schedule (one update per env step on mini-batches of 256; ``--ours own_update=false``:
+the row's ``grad_updates_per_step`` per ``num_envs`` env steps). The updates dominate the wall time:
+where env steps are cheap (thousands of simulated lanes) PPO's budget of 10–50 M
 steps usually takes less time than the off-policy budget of a few million, and an off-policy method
 is the tool when env steps are what costs (a real robot, a slow simulator).
 
@@ -105,13 +106,15 @@ def our_config(algo: str, task: str, action_size: int, row: dict[str, float], st
     """Our validated config of ``algo`` for the task's ``row`` and ``steps`` env steps, with ``overrides``
     (fields of :class:`PPOConfig` or :class:`DDPGConfig`) over it; ``ConfigError`` naming a bad one.
     PPO's ``segments=true|false`` among them picks brax's own update or the thesis's
-    (:func:`train.presets.brax_ppo_config`'s ``segments``; by default the task's preset)."""
+    (:func:`train.presets.brax_ppo_config`'s ``segments``; by default the task's preset); TD3's and
+    DDPG's ``own_update=true|false`` TD3's own update schedule or the SAC row's
+    (:func:`train.presets.brax_sac_ddpg_config`)."""
     overrides = dict(overrides or {})
     if algo == "ppo":
         segments = overrides.pop("segments", None)  # None: the task's preset
         config = brax_ppo_config(task, action_size, None if segments is None else bool(segments), **row)
     else:
-        config = brax_sac_ddpg_config(task, **row)
+        config = brax_sac_ddpg_config(task, bool(overrides.pop("own_update", True)), **row)
         config = config.replace(**TD3_SETTINGS) if algo == "td3" else config
     return apply_overrides(config.replace(total_steps=steps), overrides, type(config).__name__).validate()
 
