@@ -184,10 +184,10 @@ def brax_sac_ddpg_config(task: str, own_update: bool = True, **row: float) -> DD
     * ``own_update=False``: the row's — ``grad_updates_per_step`` updates on ``batch_size`` at its
       ``learning_rate``, the actor acting from the first step.
 
-    Measured with TD3, 3 seeds a side against brax's SAC (mean action on both sides, H100s;
+    Measured with TD3, 3 seeds a side against brax's SAC (mean action on both sides;
     ``benchmarks/results/*brax_tasks-td3-*``): hopper at 123 648 env steps 979 ± 26 with its own
-    schedule against 287 ± 86 with the row's (brax's SAC: 1256 ± 220); walker2d at 49 920 steps
-    242 ± 56 against 54 ± 60.
+    schedule against 287 ± 86 with the row's (brax's SAC: 1256 ± 221); walker2d at 49 920 steps
+    242 ± 58 against 54 ± 60 (brax's SAC at 54 144: 177 ± 73).
     """
     if task not in BRAX_SAC:
         raise KeyError(f"no brax SAC settings for {task!r}; known: {', '.join(BRAX_SAC)}")
