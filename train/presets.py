@@ -186,16 +186,17 @@ def brax_sac_ddpg_config(task: str, own_update: bool = True, **row: float) -> DD
 
     Measured with TD3, 3 seeds a side against brax's SAC (mean action on both sides;
     ``benchmarks/results/*brax_tasks-td3-*``): hopper at 123 648 env steps 979 ± 26 with its own
-    schedule against 287 ± 86 with the row's (brax's SAC: 1256 ± 221); walker2d at 49 920 steps
-    242 ± 58 against 54 ± 60 (brax's SAC at 54 144: 177 ± 73).
-    """
+    schedule against 287 ± 86 with the row's (brax's SAC: 1256 ± 221; at 209 664 steps ours stays at
+    1006 ± 6, upright without moving on, against brax's 1404 ± 761); walker2d at 49 920 steps 242 ± 58
+    against 54 ± 60 (brax's SAC at 54 144: 177 ± 73), at 104 832 steps 583 ± 242 (brax's SAC at
+    100 096: 411 ± 108)."""
     if task not in BRAX_SAC:
         raise KeyError(f"no brax SAC settings for {task!r}; known: {', '.join(BRAX_SAC)}")
     b = {**BRAX_SAC[task], **row}
     lanes = int(b["num_envs"])
     if own_update:
-        own = TD3_UPDATE
-        updates, batch, lr = lanes * own["updates_per_env_step"], own["batch_size"], own["learning_rate"]
+        updates = lanes * TD3_UPDATE["updates_per_env_step"]
+        batch, lr = TD3_UPDATE["batch_size"], TD3_UPDATE["learning_rate"]
     else:
         updates, batch, lr = int(b["grad_updates_per_step"]), int(b["batch_size"]), float(b["learning_rate"])
     return DDPGConfig(
