@@ -12,10 +12,10 @@ return at equal env steps, wall time, steps/s.
 
 Off-policy (``--algo td3`` or ``ddpg``): the tasks brax trains with SAC (:data:`train.presets.BRAX_SAC`,
 hopper and walker2d), brax's ``sac.train`` with the row as it is, ours through
-:func:`train.presets.brax_sac_ddpg_config`: the same envs, memory, discount and reward scaling, with
-TD3's own update schedule (one update per env step on mini-batches of 256; ``--ours own_update=false``:
-the row's ``grad_updates_per_step`` per ``num_envs`` env steps). The updates dominate the wall time:
-where env steps are cheap (thousands of simulated lanes) PPO's budget of 10–50 M
+:func:`train.presets.brax_sac_ddpg_config`: the same envs, memory and networks, with TD3's own settings
+(one update per env step on mini-batches of 256, γ 0.99, unscaled rewards; ``--ours own_settings=false``:
+the row's ``grad_updates_per_step`` per ``num_envs`` env steps, discount and reward scaling). The updates
+dominate the wall time: where env steps are cheap (thousands of simulated lanes) PPO's budget of 10–50 M
 steps usually takes less time than the off-policy budget of a few million, and an off-policy method
 is the tool when env steps are what costs (a real robot, a slow simulator).
 
@@ -107,14 +107,14 @@ def our_config(algo: str, task: str, action_size: int, row: dict[str, float], st
     (fields of :class:`PPOConfig` or :class:`DDPGConfig`) over it; ``ConfigError`` naming a bad one.
     PPO's ``segments=true|false`` among them picks brax's own update or the thesis's
     (:func:`train.presets.brax_ppo_config`'s ``segments``; by default the task's preset); TD3's and
-    DDPG's ``own_update=true|false`` TD3's own update schedule or the SAC row's
+    DDPG's ``own_settings=true|false`` TD3's own settings or the SAC row's
     (:func:`train.presets.brax_sac_ddpg_config`)."""
     overrides = dict(overrides or {})
     if algo == "ppo":
         segments = overrides.pop("segments", None)  # None: the task's preset
         config = brax_ppo_config(task, action_size, None if segments is None else bool(segments), **row)
     else:
-        config = brax_sac_ddpg_config(task, bool(overrides.pop("own_update", True)), **row)
+        config = brax_sac_ddpg_config(task, bool(overrides.pop("own_settings", True)), **row)
         config = config.replace(**TD3_SETTINGS) if algo == "td3" else config
     return apply_overrides(config.replace(total_steps=steps), overrides, type(config).__name__).validate()
 

@@ -35,7 +35,7 @@ __all__ = [
     "BRAX_PPO_SEGMENTS",
     "BRAX_SAC",
     "BRAX_SAC_COLUMNS",
-    "TD3_UPDATE",
+    "TD3_OWN",
     "a2c_preset",
     "brax_ppo_config",
     "brax_sac_ddpg_config",
@@ -161,50 +161,50 @@ BRAX_SAC: dict[str, dict[str, float]] = {
 """brax's SAC settings per brax task, in brax's terms (converted by :func:`brax_sac_ddpg_config`)."""
 
 
-TD3_UPDATE = dict(updates_per_env_step=1, batch_size=256, learning_rate=3e-4, random_start=True)
-"""TD3's own update schedule (Fujimoto et al. 2018, also Stable-Baselines3's TD3 defaults): one update
-per env step on mini-batches of 256 at learning rate 3e-4, uniform random actions until learning starts;
-:func:`brax_sac_ddpg_config` puts it in place of the SAC row's schedule unless ``own_update=False``."""
+TD3_OWN = dict(updates_per_env_step=1, batch_size=256, learning_rate=3e-4, random_start=True, gamma=0.99,
+               reward_scale=1.0, noise_scale=0.2)
+"""TD3's own settings for brax's SAC tasks. From Fujimoto et al. 2018 (also Stable-Baselines3's TD3
+defaults): one update per env step on mini-batches of 256 at learning rate 3e-4, uniform random actions
+until learning starts, γ 0.99 on unscaled rewards. Exploration σ 0.2 instead of their 0.1, as measured on
+hopper at 209 664 env steps (3 seeds each, ``benchmarks/results/*brax_tasks-td3-*``): σ 0.2 2658 ± 645,
+σ 0.1 1297 ± 325, and with the SAC row's γ 0.997 and reward × 30 (σ 0.1) 1006 ± 6, every seed upright
+without moving on. :func:`brax_sac_ddpg_config` puts them in place of the row's unless
+``own_settings=False``."""
 
 
-def brax_sac_ddpg_config(task: str, own_update: bool = True, **row: float) -> DDPGConfig:
+def brax_sac_ddpg_config(task: str, own_settings: bool = True, **row: float) -> DDPGConfig:
     """The DDPG :class:`DDPGConfig` of ``BRAX_SAC[task]`` (entries updated by ``row``; ``KeyError`` naming
     the tasks for an unknown one); TD3 adds ``train.td3.TD3_SETTINGS``.
 
     brax's SAC steps ``num_envs`` envs once, then makes ``grad_updates_per_step`` updates on
     mini-batches of ``batch_size``, from a memory of ``max_replay_size`` filled to ``min_replay_size``
     first: here ``num_envs`` lanes, ``unroll_length`` 1, the same memory, ``learning_starts =
-    min_replay_size``, γ and reward scaling as given, brax's SAC networks (2 × 256) and τ 0.005,
-    normalised observations, Gaussian exploration σ 0.1 (TD3's) where SAC samples its stochastic policy.
-    The update schedule:
+    min_replay_size``, brax's SAC networks (2 × 256) and τ 0.005, normalised observations, Gaussian
+    exploration where SAC samples its stochastic policy. The rest:
 
-    * ``own_update=True`` (default), :data:`TD3_UPDATE`: ``num_envs`` updates per iteration (one per env
+    * ``own_settings=True`` (default), :data:`TD3_OWN`: ``num_envs`` updates per iteration (one per env
       step) on mini-batches of 256 at learning rate 3e-4, random actions before learning starts
-      (``random_start``);
-    * ``own_update=False``: the row's — ``grad_updates_per_step`` updates on ``batch_size`` at its
-      ``learning_rate``, the actor acting from the first step.
-
-    Measured with TD3, 3 seeds a side against brax's SAC (mean action on both sides;
-    ``benchmarks/results/*brax_tasks-td3-*``): hopper at 123 648 env steps 979 ± 26 with its own
-    schedule against 287 ± 86 with the row's (brax's SAC: 1256 ± 221; at 209 664 steps ours stays at
-    1006 ± 6, upright without moving on, against brax's 1404 ± 761); walker2d at 49 920 steps 242 ± 58
-    against 54 ± 60 (brax's SAC at 54 144: 177 ± 73), at 104 832 steps 583 ± 242 (brax's SAC at
-    100 096: 411 ± 108)."""
+      (``random_start``), γ 0.99, rewards unscaled, exploration σ 0.2;
+    * ``own_settings=False``: the row's — ``grad_updates_per_step`` updates on ``batch_size`` at its
+      ``learning_rate``, its ``discounting`` and ``reward_scaling``, the actor acting from the first step
+      with σ 0.1 (TD3's)."""
     if task not in BRAX_SAC:
         raise KeyError(f"no brax SAC settings for {task!r}; known: {', '.join(BRAX_SAC)}")
     b = {**BRAX_SAC[task], **row}
     lanes = int(b["num_envs"])
-    if own_update:
-        updates = lanes * TD3_UPDATE["updates_per_env_step"]
-        batch, lr = TD3_UPDATE["batch_size"], TD3_UPDATE["learning_rate"]
+    if own_settings:
+        o = TD3_OWN
+        updates, batch, lr = lanes * int(o["updates_per_env_step"]), int(o["batch_size"]), float(o["learning_rate"])
+        gamma, scale, sigma = float(o["gamma"]), float(o["reward_scale"]), float(o["noise_scale"])
     else:
         updates, batch, lr = int(b["grad_updates_per_step"]), int(b["batch_size"]), float(b["learning_rate"])
+        gamma, scale, sigma = float(b["discounting"]), float(b["reward_scaling"]), 0.1
     return DDPGConfig(
         schedule="steps", total_steps=int(b["num_timesteps"]), num_envs=lanes, unroll_length=1,
         updates_per_iteration=updates, batch_size=batch, buffer_size=int(b["max_replay_size"]),
-        learning_starts=int(b["min_replay_size"]), random_start=own_update and TD3_UPDATE["random_start"],
-        gamma=float(b["discounting"]), reward_scale=float(b["reward_scaling"]), actor_lr=lr, critic_lr=lr, tau=0.005,
-        normalize_obs=True, actor_hidden=(256, 256), critic_hidden=(256, 256), noise="gaussian", noise_scale=(0.1,),
+        learning_starts=int(b["min_replay_size"]), random_start=own_settings and bool(TD3_OWN["random_start"]),
+        gamma=gamma, reward_scale=scale, actor_lr=lr, critic_lr=lr, tau=0.005,
+        normalize_obs=True, actor_hidden=(256, 256), critic_hidden=(256, 256), noise="gaussian", noise_scale=(sigma,),
         episode_length=int(b["episode_length"]),
     )  # fmt: skip
 
