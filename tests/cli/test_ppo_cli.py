@@ -337,7 +337,7 @@ def test_brax_preset_converts_brax_settings_and_auto_picks_it(capsys):
 def test_brax_sac_settings_convert_to_ddpg_by_hand():
     """brax's hopper SAC row (128 envs stepped once, then 64 updates on 512 transitions, memory 2^20 filled to
     8192 first, γ 0.997, reward × 30, lr 6e-4): the same schedule in DDPG's terms with ``own_settings=False``;
-    by default TD3's own (128 updates on 256 at 3e-4, random actions first, γ 0.99, reward × 1, σ 0.2);
+    by default TD3's own (128 updates on 256 at 3e-4, random actions first, γ 0.99, reward × 1, σ 0.1);
     --num-envs keeps the batch."""
     c = presets.brax_sac_ddpg_config("hopper", own_settings=False)
     schedule = (c.schedule, c.num_envs, c.unroll_length, c.updates_per_iteration, c.batch_size)
@@ -349,7 +349,7 @@ def test_brax_sac_settings_convert_to_ddpg_by_hand():
     assert (own.num_envs, own.updates_per_iteration, own.batch_size) == (16, 16, 256)
     assert own.actor_lr == own.critic_lr == 3e-4
     assert own.random_start and (own.learning_starts, own.gamma, own.reward_scale) == (8192, 0.99, 1.0)
-    assert own.noise_scale == (0.2,) and own.buffer_size == 1_048_576
+    assert own.noise_scale == (0.1,) and own.buffer_size == 1_048_576
     cfg = brax_tasks.our_config("td3", "walker2d", 6, brax_tasks.brax_row("walker2d", 0, "td3"), 1000,
                                 {"own_settings": False})
     assert (cfg.updates_per_iteration, cfg.batch_size, cfg.twin_critics) == (32, 128, True)
