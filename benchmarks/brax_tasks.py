@@ -128,8 +128,14 @@ def our_trainer(algo: str, task: str, env: Any, row: dict[str, float], steps: in
     mesh = parallel.lane_mesh(devices or None)
     if algo == "ppo":
         return ppo.make_trainer(config, env, mesh=mesh), config.episode_length
-    every = max(1, config.iterations // 20)
+    every = update_chunk(config.iterations)
     return ddpg.make_trainer(config, env, mesh=mesh, iterations_per_update=every), config.episode_length
+
+
+def update_chunk(iterations: int, calls: int = 20) -> int:
+    """Iterations per ``update`` call of an off-policy run of ``iterations``: ``calls`` calls (the points
+    the evaluations pick from), which overshoot the budget by fewer than ``calls`` iterations."""
+    return -(-iterations // calls)
 
 
 EVAL_MODES = ("stochastic", "deterministic")

@@ -23,6 +23,13 @@ def test_our_ppo_trains_brax_s_count_of_env_steps_by_hand():
     assert brax_tasks.brax_ppo_steps(reacher, 5_000_000) == 9 * 1_638_400
 
 
+def test_our_off_policy_run_stays_within_twenty_iterations_of_the_budget_by_hand():
+    """hopper, 200 000 env steps on 128 lanes: 1563 iterations in 20 calls of 79 = 1580 iterations, 202 240
+    env steps (brax's SAC: 1564, 200 192), not 21 calls of 78 (209 664); walker2d's 782 in 20 of 40."""
+    assert brax_tasks.update_chunk(1563) == 79 and -(-1563 // 79) == 20
+    assert brax_tasks.update_chunk(782) == 40 and brax_tasks.update_chunk(20) == 1 and brax_tasks.update_chunk(7) == 1
+
+
 def _part(tmp_path, name, side, returns, wall, **fields):
     """A results file of one invocation that ran only ``side`` on inverted_pendulum (``fields``: more of the
     side's record, e.g. ``eval_mode``; without it, a record as written before the mode was recorded)."""
