@@ -5,7 +5,7 @@
   config subclasses it, adds its own fields and extends ``validate``.
 * :func:`make_actor_critic` — the Gaussian actor (σ broadcast to the action size) and critic.
 * :func:`make_optimizer`, :func:`apply_gradients` — Adam (clipped, optionally annealed) and one step
-  (every algorithm's optimiser, DDPG's included).
+  (every algorithm's optimiser, DDPG's included); :func:`lr_end_factor` of ``lr_schedule``.
 * :func:`setup` → :class:`Setup` — the shell of ``make_trainer``: the config validated, lanes per
   device, the env wrapped for training, iteration and chunk counts, the initial env states
   (:meth:`Setup.reset`) and the :class:`~jaxrl_robot.types.Trainer` (:meth:`Setup.trainer`).
@@ -45,6 +45,7 @@ from jaxrl_robot.networks import ACTIVATIONS, BN_MODES, Critic, GaussianActor, g
 from jaxrl_robot.types import Metrics, Policy, Trainer, Transition
 
 __all__ = [
+    "LR_SCHEDULES",
     "ActorCriticConfig",
     "RunState",
     "action_sigma",
@@ -58,6 +59,7 @@ __all__ = [
     "init_actor_critic",
     "initial_env_params",
     "make_actor_critic",
+    "lr_end_factor",
     "make_optimizer",
     "make_train_for",
     "sample_lanes",
@@ -66,6 +68,9 @@ __all__ = [
     "setup",
     "state_specs",
 ]
+
+LR_SCHEDULES = ("constant", "linear")
+"""The learning-rate schedules of :attr:`ActorCriticConfig.lr_schedule`."""
 
 
 # ---- configuration ----------------------------------------------------------------------------
@@ -132,6 +137,9 @@ class ActorCriticConfig:
     """Entropy bonus coefficient in the actor objective."""
     max_grad_norm: float = 0.0
     """Clip gradients to this global norm (0: no clipping)."""
+    lr_schedule: str = "constant"
+    """Learning rates 'constant' (the thesis) or 'linear': annealed to 0 over the run's optimiser steps
+    (purejaxrl's and CleanRL's ``anneal_lr``, Stable-Baselines3's linear schedule)."""
     reward_scale: float = 1.0
     """Multiply rewards by this before computing returns."""
     episode_length: int = 0
@@ -155,6 +163,7 @@ class ActorCriticConfig:
             raise ConfigError("state_std=True needs learn_std=True (a state-dependent σ is learned)")
         check_range("entropy_coef", self.entropy_coef, 0.0)
         check_range("max_grad_norm", self.max_grad_norm, 0.0)
+        check_choice("lr_schedule", self.lr_schedule, LR_SCHEDULES)
         check_range("reward_scale", self.reward_scale, 0.0, lo_open=True)
         check_range("episode_length", self.episode_length, 0)
         if not self.sigma:
@@ -205,6 +214,11 @@ def action_sigma(config: ActorCriticConfig, action_size: int) -> tuple[float, ..
     if len(sigma) != action_size:
         raise ConfigError(f"sigma={config.sigma!r} must have 1 or action_size={action_size} values")
     return sigma
+
+
+def lr_end_factor(config: ActorCriticConfig) -> float:
+    """The learning rates' factor at the end of the run: 0 for ``lr_schedule='linear'``, else 1."""
+    return 0.0 if config.lr_schedule == "linear" else 1.0
 
 
 def make_optimizer(

@@ -20,6 +20,7 @@ from jaxrl_robot.agents.ppo import (
     make_networks,
     make_train,
     make_trainer,
+    optimizer_steps,
     value_loss,
 )
 from jaxrl_robot.networks import apply_actor, gaussian_sample, normalize
@@ -295,6 +296,34 @@ def test_advantage_segments_of_the_whole_unroll_are_the_thesis_s_step_and_shorte
     (_, m_cut), (plain, m_plain) = step(config.replace(advantage_segment=2)), step(config)
     assert abs(float(m_cut["critic_loss"]) / float(m_plain["critic_loss"]) - 1.0) > 0.01
     assert np.abs(plain.actor_params["Dense_0"]["kernel"] - s0.actor_params["Dense_0"]["kernel"]).max() > 0.01
+
+
+def test_linear_lr_schedule_anneals_each_optimiser_over_its_own_steps_by_hand():
+    """Adam's step on the same gradients scales with the learning rate: two iterations of one actor and one
+    critic step from the same state, linear over a run of 4 iterations against constant — the first steps
+    agree, the second ones are 3/4 of the constant run's (lr · (1 − 1/4)). The planned steps by hand: 10
+    iterations of 3 actor and 2 critic steps, 4 of them pre-training the actor without its optimiser."""
+    config = TOY.replace(batch_norm=False, objective="clip", schedule=(), minibatch_size=32, actor_updates=1,
+                         critic_updates=1, actor_lr=0.01, critic_lr=0.01, total_steps=4 * 32)  # fmt: skip
+    runs = {}
+    for name in ("constant", "linear"):
+        trainer = make_trainer(config.replace(lr_schedule=name), Line())
+        update = jax.jit(trainer.update)
+        s0 = jax.jit(trainer.init)(jax.random.PRNGKey(6))
+        s1, _ = update(s0)
+        runs[name] = (s0, s1, update(s1)[0])
+    for field in ("actor_params", "critic_params"):
+        (c0, c1, c2), (l0, l1, l2) = ([getattr(s, field) for s in runs[n]] for n in ("constant", "linear"))
+        jax.tree.map(lambda a, b: np.testing.assert_array_equal(a, b), c0, l0)
+        jax.tree.map(lambda a, b: np.testing.assert_allclose(a, b, atol=1e-7), c1, l1)
+        step = lambda a, b: np.asarray(b - a).ravel()  # noqa: E731
+        for a, b, x, y in zip(*map(jax.tree.leaves, (c1, c2, l1, l2)), strict=True):
+            np.testing.assert_allclose(step(x, y), 0.75 * step(a, b), rtol=1e-4, atol=1e-8)
+        moved = [np.abs(step(a, b)).max() for a, b in zip(jax.tree.leaves(c1), jax.tree.leaves(c2), strict=True)]
+        assert max(moved) > 1e-3
+    assert optimizer_steps(TOY.replace(actor_updates=3, critic_updates=2), 10, pretrain_iters=4) == (18, 20)
+    with pytest.raises(ConfigError, match="lr_schedule='cosine'.*'constant', 'linear'"):
+        TOY.replace(lr_schedule="cosine").validate()
 
 
 def test_advantage_segment_errors_name_the_setting():

@@ -5,13 +5,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from envs_mjx.config import ConfigError, check_choice, check_range
-from jaxrl_robot.agents.common import ActorCriticConfig
+from jaxrl_robot.agents.common import LR_SCHEDULES, ActorCriticConfig
 
 __all__ = ["BN_BATCHES", "LR_SCHEDULES", "PUSH_ORDERS", "A2CConfig", "A3CConfig"]
 
 PUSH_ORDERS = ("random", "fixed")
 BN_BATCHES = ("update", "lane")
-LR_SCHEDULES = ("constant", "linear")
 
 
 @dataclass(frozen=True)
@@ -35,8 +34,6 @@ class A2CConfig(ActorCriticConfig):
     normalize_advantages: bool = False
     """Standardise the advantages over all transitions behind one applied gradient (A2C: the
     round's K·N; A3C: the worker's buffers) — not in the thesis."""
-    lr_schedule: str = "constant"
-    """Learning rates 'constant' (the thesis) or 'linear' (annealed to 0 over the run's applied gradients)."""
     bn_batch: str = "update"
     """Batch-norm statistics in training: 'lane' (each lane's own buffer of at most N
     consecutive steps, as each thesis worker normalises its local buffer) or 'update' (all
@@ -45,7 +42,6 @@ class A2CConfig(ActorCriticConfig):
     def validate(self) -> A2CConfig:
         """Raise ``ConfigError`` naming the first invalid field; return self."""
         super().validate()
-        check_choice("lr_schedule", self.lr_schedule, LR_SCHEDULES)
         check_choice("bn_batch", self.bn_batch, BN_BATCHES)
         return self
 

@@ -142,7 +142,7 @@ def make_trainer(config: A2CConfig, env: Env, *, mesh: Mesh | None = None, itera
     actor, critic = make_networks(config, run.action_size)
     worker_loss = make_worker_loss(config, actor, critic, axis_name=None if asynchronous else _LANES)
     applied = run.num_updates * iterations_per_update * W  # global updates of the whole run
-    end = 0.0 if config.lr_schedule == "linear" else 1.0  # "linear": annealed to 0 over the applied updates
+    end = common.lr_end_factor(config)  # "linear": annealed to 0 over the applied updates
     actor_tx = common.make_optimizer(config.actor_lr, config.max_grad_norm, end, applied)
     critic_tx = common.make_optimizer(config.critic_lr, config.max_grad_norm, end, applied)
     momentum = config.bn_momentum

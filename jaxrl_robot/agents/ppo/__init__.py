@@ -8,7 +8,7 @@ from jaxrl_robot.agents.ppo.losses import (
     make_actor_loss,
     value_loss,
 )
-from jaxrl_robot.agents.ppo.train import PPOState, make_networks, make_train, make_trainer
+from jaxrl_robot.agents.ppo.train import PPOState, make_networks, make_train, make_trainer, optimizer_steps
 
 __all__ = [
     "OBJECTIVES",
@@ -21,5 +21,6 @@ __all__ = [
     "make_networks",
     "make_train",
     "make_trainer",
+    "optimizer_steps",
     "value_loss",
 ]

@@ -50,7 +50,7 @@ from jaxrl_robot.recurrent import table_lookup, table_update
 from jaxrl_robot.returns import gae, lambda_returns
 from jaxrl_robot.types import Metrics, Policy, RecurrentPolicy, RunningStats, Trainer
 
-__all__ = ["PPOState", "make_actor_loss", "make_networks", "make_train", "make_trainer"]
+__all__ = ["PPOState", "make_actor_loss", "make_networks", "make_train", "make_trainer", "optimizer_steps"]
 
 _LANES = parallel.LANES
 
@@ -122,6 +122,13 @@ def pretrain_iterations(config: PPOConfig, env: Env) -> int:
     return iterations
 
 
+def optimizer_steps(config: PPOConfig, iterations: int, pretrain_iters: int = 0) -> tuple[int, int]:
+    """``(actor, critic)`` Adam steps of a run of ``iterations``: ``actor_updates`` per iteration for the
+    actor, save in the ``pretrain_iters`` of imitation (which fit the actor without its optimiser), and
+    ``critic_updates`` for the critic (with ``advantage_segment``, the same count as the actor's)."""
+    return (iterations - pretrain_iters) * config.actor_updates, iterations * config.critic_updates
+
+
 def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, iterations_per_update: int = 1) -> Trainer:
     """Build the PPO :class:`~jaxrl_robot.types.Trainer` for the *unbatched* ``env``.
 
@@ -148,10 +155,12 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
     S = config.advantage_segment  # steps per advantage segment (0: advantages once per batch)
     use_table = uses_start_table(config, env)
     pretrain_iters = pretrain_iterations(config, env)
-    actor_tx = common.make_optimizer(config.actor_lr, config.max_grad_norm)
-    critic_tx = common.make_optimizer(config.critic_lr, config.max_grad_norm)
     tables = common.schedule_tables(config.schedule, env)
     schedule_len = float(run.num_updates * iterations_per_update)
+    end = common.lr_end_factor(config)
+    actor_steps, critic_steps = optimizer_steps(config, run.num_updates * iterations_per_update, pretrain_iters)
+    actor_tx = common.make_optimizer(config.actor_lr, config.max_grad_norm, end, actor_steps)
+    critic_tx = common.make_optimizer(config.critic_lr, config.max_grad_norm, end, critic_steps)
 
     def obs_norm(stats: RunningStats, obs: jax.Array) -> jax.Array:
         return normalize(stats if config.normalize_obs else None, obs)
