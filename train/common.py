@@ -684,8 +684,9 @@ class RunOptions(RunSettings):
     env: str = "arm7"
     """Environment: a registered name (envs_mjx.names()) or brax:<name> for brax's own envs."""
     preset: str = "auto"
-    """Hyper-parameter preset: auto (fast on a GPU, else cpu), thesis, cpu or fast.
-    PPO, A2C and A3C presets run arm7 in kinematic mode under thesis and cpu (--env-config overrides)."""
+    """Hyper-parameter preset: auto (fast on a GPU, else cpu; brax on brax's tasks of PPO, DDPG and TD3),
+    thesis, cpu, fast or brax (PPO, DDPG, TD3). PPO, A2C and A3C presets run arm7 in kinematic mode under
+    thesis and cpu (--env-config overrides)."""
     reward: str | None = None
     """Reward function of the env (arm7: sparse, shaped, ordinary, path); None keeps the env's default."""
     env_config: tuple[str, ...] = ()
@@ -863,8 +864,9 @@ class AlgorithmCLI:
         else:
             preset = resolve_preset(known.preset, known.env, self.name)
             if known.preset == "auto" and preset == "brax" and not any(a in ("-h", "--help") for a in argv):
-                print(f"preset: brax (brax's published PPO settings for {known.env}; train/presets.py BRAX_PPO)",
-                      file=sys.stderr)  # fmt: skip
+                source = ("brax's published PPO settings", "BRAX_PPO") if self.name == "ppo" else \
+                    ("brax's SAC lanes and memory with TD3's own update settings", "BRAX_SAC, TD3_OWN")
+                print(f"preset: brax ({source[0]} for {known.env}; train/presets.py {source[1]})", file=sys.stderr)
             fields = ("env", "reward", "env_config", *self.env_fields)
             variant = {k: getattr(known, k) for k in self.preset_fields if getattr(known, k) is not None}
             ahead = self.args(self.config_type(**variant), preset=preset, **{k: getattr(known, k) for k in fields})

@@ -39,7 +39,9 @@ __all__ = [
     "a2c_preset",
     "brax_ppo_config",
     "brax_sac_ddpg_config",
+    "brax_sac_task",
     "distribute",
+    "DDPG_PRESETS",
     "PPO_PRESETS",
     "ppo_env_overrides",
     "ddpg_env_overrides",
@@ -56,7 +58,7 @@ __all__ = [
 
 PPO_PRESETS = ("auto", "thesis", "cpu", "fast", "brax")
 PRESETS = ("auto", "thesis", "cpu", "fast")
-"""The presets of every algorithm; ``brax`` is PPO's alone."""
+"""The presets of every algorithm; ``brax`` is PPO's, DDPG's and TD3's (:data:`DDPG_PRESETS`)."""
 
 BRAX_COLUMNS = ("num_timesteps", "num_envs", "batch_size", "num_minibatches", "unroll_length",
                 "num_updates_per_batch", "discounting", "entropy_cost", "reward_scaling", "learning_rate",
@@ -217,14 +219,22 @@ def brax_task(env_name: str) -> str | None:
     return task if prefix == "brax" and task in BRAX_PPO else None
 
 
+def brax_sac_task(env_name: str) -> str | None:
+    """The :data:`BRAX_SAC` task of ``env_name`` (``brax:<task>``), or None."""
+    prefix, _, task = env_name.partition(":")
+    return task if prefix == "brax" and task in BRAX_SAC else None
+
+
 def resolve_preset(name: str, env_name: str | None = None, algo: str = "ppo") -> str:
-    """``auto`` → ``brax`` for a PPO run on a task of :data:`BRAX_PPO`, else ``fast`` on an
-    accelerator backend, else ``cpu``; other names unchanged (validated: ``brax`` is PPO's)."""
-    valid = PPO_PRESETS if algo == "ppo" else PRESETS
+    """``auto`` → ``brax`` for a PPO run on a task of :data:`BRAX_PPO` or a DDPG / TD3 run on one of
+    :data:`BRAX_SAC`, else ``fast`` on an accelerator backend, else ``cpu``; other names unchanged
+    (validated: ``brax`` is PPO's, DDPG's and TD3's)."""
+    valid = {"ppo": PPO_PRESETS, "ddpg": DDPG_PRESETS, "td3": DDPG_PRESETS}.get(algo, PRESETS)
     if name not in valid:
         raise ValueError(f"unknown preset {name!r}; valid presets: {', '.join(valid)}")
     if name == "auto":
-        if algo == "ppo" and env_name is not None and brax_task(env_name):
+        task = None if env_name is None else (brax_task if algo == "ppo" else brax_sac_task)(env_name)
+        if task and algo in ("ppo", "ddpg", "td3"):
             return "brax"
         return "fast" if jax.default_backend() in ("gpu", "cuda", "rocm", "tpu") else "cpu"
     return name
@@ -520,7 +530,9 @@ def a2c_preset(
 
 # ---- DDPG ---------------------------------------------------------------------------------
 
-DDPG_PRESETS = ("auto", "thesis", "cpu", "fast")
+DDPG_PRESETS = ("auto", "thesis", "cpu", "fast", "brax")
+"""DDPG's and TD3's presets: ``brax`` is :func:`brax_sac_ddpg_config` of the env's :data:`BRAX_SAC` task
+(hopper's row for other envs, with the env's own episode length)."""
 
 
 RACING_ENV = {"road": "random", "opponent_speeds": True, "opponent_offsets": True, "distance_scale": "log",
@@ -601,7 +613,11 @@ def ddpg_preset(
     """
     name = resolve_preset(name, algo="ddpg")
     family = _family(env_name)
-    if family == "arm":
+    if name == "brax":
+        task = brax_sac_task(env_name)
+        base = brax_sac_ddpg_config(task or "hopper").replace(**({} if task else {"episode_length": 0}))
+        presets = {"brax": {}}
+    elif family == "arm":
         sparse = reward == "sparse"
         long = sparse or _precise_arm(env_name)
         scale = 2 if _precise_arm(env_name) and her == "random" else 1
@@ -704,16 +720,17 @@ def distribute(config: DDPGConfig, name: str) -> DDPGConfig:
     ``thesis`` and ``cpu``: 4 synchronous workers sharing the ``num_envs`` lanes and 4 collecting
     workers of ``num_envs / 4`` lanes each, mini-batches of 32 per synchronous worker (128
     transitions per update), a shared memory of 200 000 and a fetch every 5 iterations (§4.2.2;
-    the tracking rows step one lane per worker, as the thesis's processes did).  ``fast``: 8 + 8
+    the tracking rows step one lane per worker, as the thesis's processes did).  ``fast`` and ``brax``: 8 + 8
     workers (a multiple of 1, 2, 4 or 8 GPUs), the single learner's batch split over the 8
     synchronous workers, memory at least 10^6.  The 'steps' budget counts every lane's steps; it
     grows with the lanes so that the number of iterations and updates stays the preset's (the
     thesis's tracking row: each of the 8 workers runs the 1000 episodes).
     """
-    workers = 8 if name == "fast" else 4
+    wide = name in ("fast", "brax")
+    workers = 8 if wide else 4
     changes: dict = dict(distributed=True, sync_workers=workers, collect_workers=workers, fetch_every=5,
                          collect_lanes=max(1, config.num_envs // workers))
-    if name == "fast":
+    if wide:
         changes.update(batch_size=max(1, config.batch_size // workers), buffer_size=max(config.buffer_size, 1_000_000))
     else:
         changes.update(batch_size=32, buffer_size=200_000)

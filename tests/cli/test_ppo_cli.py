@@ -17,9 +17,11 @@ from benchmarks import brax_tasks
 from jaxrl_robot.checkpoint import Checkpointer
 from jaxrl_robot.types import Trainer
 from tests.subproc import ROOT, cpu_env
+from train import a2c as a2c_cli
 from train import common, presets
 from train import ddpg as ddpg_cli
 from train import ppo as ppo_cli
+from train import td3 as td3_cli
 
 TINY = [
     "--num-envs", "4", "--unroll-length", "8", "--minibatch-size", "16", "--actor-updates", "2",
@@ -327,11 +329,31 @@ def test_brax_preset_converts_brax_settings_and_auto_picks_it(capsys):
     # benchmarks.brax_tasks --num-envs 64: the batch scales with the envs, the per-lane structure stays
     small = presets.brax_ppo_config("inverted_pendulum", 1, **brax_tasks.brax_row("inverted_pendulum", 64))
     assert (small.num_envs, small.unroll_length, small.minibatch_size, small.actor_updates) == (64, 80, 128, 160)
-    # a flag still wins; envs without a row keep the generic presets; other algorithms have no brax preset
+    # a flag still wins; envs without a row keep the generic presets; A2C and A3C have no brax preset
     assert ppo_cli.parse(["--env", "brax:inverted_pendulum", "--gamma", "0.9"]).ppo.gamma == 0.9
     assert ppo_cli.parse(["--env", "brax:fast"]).preset in ("cpu", "fast")
-    assert ddpg_cli.main(["--env", "arm7", "--preset", "brax"]) == 2
+    assert a2c_cli.main(["--env", "arm7", "--preset", "brax"]) == 2
     assert "unknown preset 'brax'; valid presets: auto, thesis, cpu, fast" in capsys.readouterr().err
+
+
+def test_td3_and_ddpg_brax_preset_is_the_sac_row_with_td3_s_own_settings_and_auto_picks_it(capsys):
+    """``python -m train.td3 --env brax:hopper``: brax's hopper SAC lanes and memory (128 lanes, 2^20 rows
+    filled to 8192 first, 6 553 600 steps, 2 × 256 nets) with TD3's own settings (128 updates per iteration
+    of 128 env steps on 256 rows at 3e-4, γ 0.99, reward × 1, σ 0.1, random start) and TD3's critics;
+    distributed: 8 + 8 workers of 16 lanes, the batch split; DDPG on an env without a row: hopper's with
+    the env's own episode length; an unknown brax task keeps the generic presets."""
+    hop = td3_cli.parse(["--env", "brax:hopper"])
+    assert hop.preset == "brax" and "preset: brax (brax's SAC lanes and memory" in capsys.readouterr().err
+    c = hop.td3
+    assert (c.num_envs, c.unroll_length, c.updates_per_iteration, c.batch_size) == (128, 1, 128, 256)
+    assert (c.buffer_size, c.learning_starts, c.total_steps, c.actor_hidden) == (1_048_576, 8192, 6_553_600, (256, 256))
+    assert (c.gamma, c.reward_scale, c.noise_scale, c.actor_lr, c.episode_length) == (0.99, 1.0, (0.1,), 3e-4, 1000)
+    assert c.random_start and c.twin_critics and c.policy_delay == 2 and c.normalize_obs
+    d = ddpg_cli.parse(["--env", "brax:walker2d", "--distributed"]).ddpg
+    assert (d.sync_workers, d.collect_workers, d.collect_lanes, d.batch_size, d.twin_critics) == (8, 8, 16, 32, False)
+    arm = ddpg_cli.parse(["--env", "arm7", "--preset", "brax"]).ddpg
+    assert (arm.num_envs, arm.schedule, arm.episode_length, arm.gamma) == (128, "steps", 0, 0.99)
+    assert ddpg_cli.parse(["--env", "brax:ant"]).preset in ("cpu", "fast")
 
 
 def test_brax_sac_settings_convert_to_ddpg_by_hand():
