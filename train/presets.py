@@ -609,7 +609,9 @@ def ddpg_preset(
 
     ``cpu`` keeps the thesis's update-to-data ratio with a shorter run (for tracking it also changes
     the learning settings, see the comment below); ``fast`` runs many more lanes per cycle on an
-    accelerator with proportionally more updates on larger batches.
+    accelerator with proportionally more updates on larger batches.  ``brax`` (brax's tasks, and any
+    env on request): :func:`brax_sac_ddpg_config` of the env's :data:`BRAX_SAC` row, hopper's for an env
+    without one (with the env's own episode length).
     """
     name = resolve_preset(name, algo="ddpg")
     family = _family(env_name)
