@@ -432,6 +432,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         p.error("--no-brax and --no-ours: nothing would run; give at most one")
     if not 0 <= args.devices <= jax.device_count():
         p.error(f"--devices {args.devices}: this machine has {jax.device_count()} (0: all of them)")
+    if args.seed_map == "vmap" and not args.no_ours and jax.default_backend() == "cpu":
+        p.error("--seed-map vmap: on the CPU, XLA stops with a floating-point exception compiling our trainer "
+                "vmapped over seeds on brax's MJX envs (jax 0.10.2); use --seed-map loop")
     if args.seed_map == "vmap" and args.seeds > 1 and (args.devices or jax.device_count()) > 1:
         p.error(f"--seed-map vmap runs its {args.seeds} seeds on one device; add --devices 1 or --seed-map loop")
     args.eval_mode = args.eval_mode or default_eval_mode(args.algo)
