@@ -417,8 +417,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                    help="write one report from results files of this benchmark (e.g. ours and brax's run on two "
                    "GPUs at once): per task, our side and brax's from the files that ran them")  # fmt: skip
     p.add_argument("--seed-map", default="loop", choices=["loop", "vmap"],
-                   help="our seeds: one program called per seed, or one vmapped program (XLA's CPU compiler "
-                   "stops with a floating point exception on the vmapped MJX program, jax 0.10.2)")  # fmt: skip
+                   help="our seeds: one program called per seed, or one vmapped program (an accelerator's only: "
+                   "XLA's CPU compiler stops with a floating point exception on the vmapped MJX program, "
+                   "jax 0.10.2)")  # fmt: skip
     p.add_argument("--devices", type=int, default=1,
                    help="devices our lanes are spread over (0: all; more than 1 with --seed-map loop)")
     p.add_argument("--out", default=RESULTS)
