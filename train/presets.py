@@ -213,28 +213,32 @@ def brax_sac_ddpg_config(task: str, own_settings: bool = True, **row: float) -> 
     )  # fmt: skip
 
 
+def _brax_task_of(env_name: str, table: dict) -> str | None:
+    """The task of ``env_name`` (``brax:<task>``) if ``table`` has a row for it, else None."""
+    prefix, _, task = env_name.partition(":")
+    return task if prefix == "brax" and task in table else None
+
+
 def brax_task(env_name: str) -> str | None:
     """The :data:`BRAX_PPO` task of ``env_name`` (``brax:<task>``), or None."""
-    prefix, _, task = env_name.partition(":")
-    return task if prefix == "brax" and task in BRAX_PPO else None
+    return _brax_task_of(env_name, BRAX_PPO)
 
 
 def brax_sac_task(env_name: str) -> str | None:
     """The :data:`BRAX_SAC` task of ``env_name`` (``brax:<task>``), or None."""
-    prefix, _, task = env_name.partition(":")
-    return task if prefix == "brax" and task in BRAX_SAC else None
+    return _brax_task_of(env_name, BRAX_SAC)
 
 
 def resolve_preset(name: str, env_name: str | None = None, algo: str = "ppo") -> str:
     """``auto`` → ``brax`` for a PPO run on a task of :data:`BRAX_PPO` or a DDPG / TD3 run on one of
     :data:`BRAX_SAC`, else ``fast`` on an accelerator backend, else ``cpu``; other names unchanged
     (validated: ``brax`` is PPO's, DDPG's and TD3's)."""
-    valid = {"ppo": PPO_PRESETS, "ddpg": DDPG_PRESETS, "td3": DDPG_PRESETS}.get(algo, PRESETS)
+    valid, table = {"ppo": (PPO_PRESETS, BRAX_PPO), "ddpg": (DDPG_PRESETS, BRAX_SAC),
+                    "td3": (DDPG_PRESETS, BRAX_SAC)}.get(algo, (PRESETS, {}))  # fmt: skip
     if name not in valid:
         raise ValueError(f"unknown preset {name!r}; valid presets: {', '.join(valid)}")
     if name == "auto":
-        task = None if env_name is None else (brax_task if algo == "ppo" else brax_sac_task)(env_name)
-        if task and algo in ("ppo", "ddpg", "td3"):
+        if env_name is not None and _brax_task_of(env_name, table):
             return "brax"
         return "fast" if jax.default_backend() in ("gpu", "cuda", "rocm", "tpu") else "cpu"
     return name

@@ -156,9 +156,10 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
     use_table = uses_start_table(config, env)
     pretrain_iters = pretrain_iterations(config, env)
     tables = common.schedule_tables(config.schedule, env)
-    schedule_len = float(run.num_updates * iterations_per_update)
+    iterations = run.num_updates * iterations_per_update
+    schedule_len = float(iterations)
     end = common.lr_end_factor(config)
-    actor_steps, critic_steps = optimizer_steps(config, run.num_updates * iterations_per_update, pretrain_iters)
+    actor_steps, critic_steps = optimizer_steps(config, iterations, pretrain_iters)
     actor_tx = common.make_optimizer(config.actor_lr, config.max_grad_norm, end, actor_steps)
     critic_tx = common.make_optimizer(config.critic_lr, config.max_grad_norm, end, critic_steps)
 
