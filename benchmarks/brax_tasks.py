@@ -21,9 +21,11 @@ is the tool when env steps are what costs (a real robot, a slow simulator).
 
 Both train on the same env object (``brax.envs.get_environment(task, backend=--backend)``, MJX by
 default) for the same env steps with the settings of :data:`train.presets.BRAX_PPO`: brax's
-``ppo.train`` takes the row as it is; ours takes it through :func:`train.presets.brax_ppo_config`
-(``python -m train.ppo --env brax:<task>`` picks the same preset). Our seeds run through one compiled
-program called per seed (``--seed-map vmap``: one vmapped program), brax's one after another.
+``ppo.train`` takes the row as it is; ours takes it through :func:`train.presets.brax_ppo_config`,
+with our fields of :data:`train.presets.BRAX_PPO_TUNED` over it on the tasks that table names
+(``--ours tuned=false``: the row alone; ``python -m train.ppo --env brax:<task>`` picks the same
+preset). Our seeds run through one compiled program called per seed (``--seed-map vmap``: one vmapped
+program), brax's one after another.
 
 * **return**: brax: its own final evaluation (``eval/episode_reward``, 128 episodes of
   ``episode_length`` steps) of its policy's sampled actions (brax's default; PPO's unless
@@ -106,13 +108,15 @@ def our_config(algo: str, task: str, action_size: int, row: dict[str, float], st
     """Our validated config of ``algo`` for the task's ``row`` and ``steps`` env steps, with ``overrides``
     (fields of :class:`PPOConfig` or :class:`DDPGConfig`) over it; ``ConfigError`` naming a bad one.
     PPO's ``segments=true|false`` among them picks brax's own update or the thesis's
-    (:func:`train.presets.brax_ppo_config`'s ``segments``; by default the task's preset); TD3's and
+    (:func:`train.presets.brax_ppo_config`'s ``segments``; by default the task's preset) and
+    ``tuned=false`` leaves out the task's :data:`train.presets.BRAX_PPO_TUNED` fields; TD3's and
     DDPG's ``own_settings=true|false`` TD3's own settings or the SAC row's
     (:func:`train.presets.brax_sac_ddpg_config`)."""
     overrides = dict(overrides or {})
     if algo == "ppo":
         segments = overrides.pop("segments", None)  # None: the task's preset
-        config = brax_ppo_config(task, action_size, None if segments is None else bool(segments), **row)
+        tuned = bool(overrides.pop("tuned", True))
+        config = brax_ppo_config(task, action_size, None if segments is None else bool(segments), tuned, **row)
     else:
         config = brax_sac_ddpg_config(task, bool(overrides.pop("own_settings", True)), **row)
         config = config.replace(**TD3_SETTINGS) if algo == "td3" else config
@@ -319,7 +323,7 @@ def return_ratio(ours: float, brax: float) -> float:
 
 def to_markdown(result: dict[str, Any]) -> str:
     name, peer, _ = ALGOS[result.get("algo", "ppo")]
-    table = "BRAX_PPO" if peer == "ppo" else "BRAX_SAC"
+    table = "BRAX_PPO`; ours with `BRAX_PPO_TUNED` over it on the tasks it names" if peer == "ppo" else "BRAX_SAC"
     out = [f"# Our {name} beside brax's {peer.upper()} on brax's tasks — {result['device']}", "",
            f"Backend `{result['backend']}`; {result['seeds']} seeds of ours ({result['seed_map']}), "
            f"{result['brax_seeds']} of brax's (one after another); the same env steps and settings "

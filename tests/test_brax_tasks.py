@@ -319,6 +319,11 @@ def test_our_config_takes_overrides_and_a_bad_one_is_a_one_line_error(capsys):
     assert not brax.critic_first and brax.unroll_length == 160  # 16 384 unrolls over 2 048 lanes: 8 each
     hopper = brax_tasks.our_config("ppo", "hopper", 3, BRAX_PPO["hopper"], 1000, {"segments": True})
     assert (hopper.advantage_segment, hopper.minibatch_size, hopper.num_envs) == (5, 10240, 4096)  # 2 048 unrolls
+    reacher = {t: brax_tasks.our_config("ppo", "reacher", 2, BRAX_PPO["reacher"], 1000, o)
+               for t, o in (("tuned", {}), ("row", {"tuned": False}))}  # fmt: skip
+    assert (reacher["tuned"].actor_lr, reacher["tuned"].max_grad_norm) == (1e-3, 1.0)
+    row = reacher["row"]
+    assert (row.actor_lr, row.max_grad_norm, row.lr_schedule) == (3e-4, 0.0, "constant")
     for bad, message in (("nope=1", "unknown setting 'nope'"), ("clip_actions=true", "exclude each other")):
         try:
             brax_tasks.main(["--tasks", "halfcheetah", "--ours", bad])

@@ -322,6 +322,14 @@ def test_brax_preset_converts_brax_settings_and_auto_picks_it(capsys):
     assert (hc.advantage_segment, hc.critic_first) == (20, False)
     thesis = presets.brax_ppo_config("halfcheetah", 6, segments=False)
     assert (thesis.advantage_segment, thesis.critic_first, thesis.minibatch_size) == (0, True, 10240)
+    # reacher's tuned fields over its row (Adam at 1e-3 annealed to 0, gradients clipped at norm 1),
+    # winning over the row's learning rate; tuned=False gives the row alone (brax's 3e-4, constant)
+    re = ppo_cli.parse(["--env", "brax:reacher"]).ppo
+    assert (re.actor_lr, re.critic_lr, re.lr_schedule, re.max_grad_norm) == (1e-3, 1e-3, "linear", 1.0)
+    assert (re.gamma, re.entropy_coef, re.advantage_segment) == (0.95, 1e-3, 50)  # the row's and brax's update
+    row = presets.brax_ppo_config("reacher", 2, tuned=False, learning_rate=5e-4)
+    assert (row.actor_lr, row.lr_schedule, row.max_grad_norm) == (5e-4, "constant", 0.0)
+    assert presets.brax_ppo_config("reacher", 2, learning_rate=5e-4).actor_lr == 1e-3
     # the recurrent policy: the thesis's update over brax's lanes, whole sequences of 10 in each unroll
     lstm = ppo_cli.parse(["--env", "brax:halfcheetah", "--policy", "lstm"]).ppo.validate()
     assert (lstm.policy, lstm.advantage_segment, lstm.num_envs, lstm.unroll_length) == ("lstm", 0, 2048, 160)
