@@ -112,8 +112,9 @@ def brax_ppo_config(task: str, action_size: int, segments: bool | None = None, t
 
     Measured at 5 M env steps, 3 seeds, sampled actions, against brax's own PPO
     (``benchmarks/results/*brax_tasks-5M*``): brax's update — halfcheetah 1858 ± 272 against 1704 ±
-    316, reacher −20.7 ± 0.7 against −20.5 ± 1.0 (both on H200s; the thesis's update: 1295 ± 79 and
-    −22.6 ± 0.7); the thesis's update — hopper 492 ± 89 against 425 ± 87 (brax's update: 363 ± 16),
+    316, reacher with the row alone −20.7 ± 0.7 against −20.5 ± 1.0 (both on H200s; the thesis's update:
+    1295 ± 79 and −22.6 ± 0.7; reacher's tuned fields: :data:`BRAX_PPO_TUNED`); the thesis's update —
+    hopper 492 ± 89 against 425 ± 87 (brax's update: 363 ± 16),
     inverted_double_pendulum 9169 ± 212 against 2218 ± 1437 (brax's update: 4133 ± 1697),
     inverted_pendulum 1000 on every side.
     """
@@ -155,13 +156,14 @@ BRAX_PPO_TUNED: dict[str, dict[str, float | str]] = {
     "reacher": dict(lr_schedule="linear", actor_lr=1e-3, critic_lr=1e-3, max_grad_norm=1.0),
 }
 """Our :class:`PPOConfig` fields over a task's converted :data:`BRAX_PPO` row (:func:`brax_ppo_config`'s
-``tuned``), where brax's row alone leaves ours short of brax's own PPO.
+``tuned``) on the tasks where they take ours past brax's own PPO and the row alone does not.
 
-reacher at 5 M env steps (7 372 800), sampled actions, 8 seeds a side on one H200 host
-(``benchmarks/results/gpu-nvidia_h200-brax_tasks-5M-reacher-tuned.md``): −15.0 ± 1.2 against brax's
-−38.4 ± 43.4 (median −21.2; its seed 3 fell from −27.7 to −148.6 at the last evaluation); with the row
-alone ours had −21.4 ± 1.9 (5 seeds), with the learning-rate change alone −16.8 ± 0.7 (8 seeds), with the
-clipping alone −18.6 ± 0.8 (5 seeds)."""
+reacher at 5 M env steps (7 372 800), sampled actions, on one H200 host
+(``benchmarks/results/gpu-nvidia_h200-brax_tasks-5M-reacher-tuned.md``): 8 vmapped seeds −14.5 ± 0.3,
+every seed ahead of each of brax's 11 (−33.9 ± 36.4, median −21.2; −22.5 ± 3.0 without its seed 3, which
+fell from −27.7 to −148.6 at the last evaluation and reached −21.2 when run again). With the row alone
+ours had −21.3 ± 1.0 (8 seeds, ``…-5M-reacher-row.md``); with the learning-rate change alone −16.8 ± 0.7
+(8 seeds), with the clipping alone −18.6 ± 0.8 (5 seeds; ``…-5M-reacher-sweep.md``)."""
 
 BRAX_SAC_COLUMNS = ("num_timesteps", "num_envs", "batch_size", "grad_updates_per_step", "discounting",
                     "reward_scaling", "learning_rate", "episode_length", "max_replay_size", "min_replay_size")
