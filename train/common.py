@@ -88,7 +88,7 @@ from jaxrl_robot.evaluation import (
 from jaxrl_robot.logging import MetricsLogger, read_csv
 from jaxrl_robot.plots import plot_tracking, plot_training_curves
 from jaxrl_robot.types import Trainer, as_recurrent
-from train.presets import resolve_preset
+from train.presets import BRAX_PPO_TUNED, brax_task, resolve_preset
 
 __all__ = [
     "AlgorithmCLI",
@@ -864,7 +864,9 @@ class AlgorithmCLI:
         else:
             preset = resolve_preset(known.preset, known.env, self.name)
             if known.preset == "auto" and preset == "brax" and not any(a in ("-h", "--help") for a in argv):
-                source = ("brax's published PPO settings", "BRAX_PPO") if self.name == "ppo" else \
+                tuned = brax_task(known.env) in BRAX_PPO_TUNED
+                source = ("brax's published PPO settings" + (" with our tuned fields over them" if tuned else ""),
+                          "BRAX_PPO" + (", BRAX_PPO_TUNED" if tuned else "")) if self.name == "ppo" else \
                     ("brax's SAC lanes and memory with TD3's own update settings", "BRAX_SAC, TD3_OWN")
                 print(f"preset: brax ({source[0]} for {known.env}; train/presets.py {source[1]})", file=sys.stderr)
             fields = ("env", "reward", "env_config", *self.env_fields)

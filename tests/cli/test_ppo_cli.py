@@ -325,6 +325,8 @@ def test_brax_preset_converts_brax_settings_and_auto_picks_it(capsys):
     # reacher's tuned fields over its row (Adam at 1e-3 annealed to 0, gradients clipped at norm 1),
     # winning over the row's learning rate; tuned=False gives the row alone (brax's 3e-4, constant)
     re = ppo_cli.parse(["--env", "brax:reacher"]).ppo
+    assert "settings with our tuned fields over them for brax:reacher; train/presets.py BRAX_PPO, BRAX_PPO_TUNED)" \
+        in capsys.readouterr().err
     assert (re.actor_lr, re.critic_lr, re.lr_schedule, re.max_grad_norm) == (1e-3, 1e-3, "linear", 1.0)
     assert (re.gamma, re.entropy_coef, re.advantage_segment) == (0.95, 1e-3, 50)  # the row's and brax's update
     row = presets.brax_ppo_config("reacher", 2, tuned=False, learning_rate=5e-4)
