@@ -323,7 +323,8 @@ def return_ratio(ours: float, brax: float) -> float:
 
 def to_markdown(result: dict[str, Any]) -> str:
     name, peer, _ = ALGOS[result.get("algo", "ppo")]
-    table = "BRAX_PPO`, ours with the task's fields of `train.presets.BRAX_PPO_TUNED" if peer == "ppo" else "BRAX_SAC"
+    table = "BRAX_PPO`, ours with the task's fields of `train.presets.BRAX_PPO_TUNED` unless `--ours tuned=false" \
+        if peer == "ppo" else "BRAX_SAC"
     out = [f"# Our {name} beside brax's {peer.upper()} on brax's tasks — {result['device']}", "",
            f"Backend `{result['backend']}`; {result['seeds']} seeds of ours ({result['seed_map']}), "
            f"{result['brax_seeds']} of brax's (one after another); the same env steps and settings "
