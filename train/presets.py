@@ -11,10 +11,12 @@ PPO presets:
 * ``cpu`` — a few dozen lanes, sized for a 2-core CPU (the default without an accelerator);
   larger learning rates and no batch-norm (more stable here than the thesis's BN actor).
 * ``fast`` — thousands of lanes for one GPU (the default with an accelerator).
-* ``brax`` (PPO only) — brax's published PPO settings for its standard tasks (:data:`BRAX_PPO`,
-  converted by :func:`brax_ppo_config`); ``auto`` picks it for a ``brax:<task>`` env of that table.
-* ``auto`` — ``brax`` for the tasks of :data:`BRAX_PPO` (PPO), else ``fast`` on a GPU/TPU backend,
-  else ``cpu``.
+* ``brax`` (PPO, DDPG and TD3) — PPO: brax's published PPO settings for its standard tasks
+  (:data:`BRAX_PPO`, converted by :func:`brax_ppo_config`, with our fields of :data:`BRAX_PPO_TUNED`
+  over the tasks it names); DDPG and TD3: brax's SAC lanes and memory with TD3's own update settings
+  (:data:`BRAX_SAC`, :data:`TD3_OWN`, :func:`brax_sac_ddpg_config`).
+* ``auto`` — ``brax`` for the tasks of :data:`BRAX_PPO` (PPO) or :data:`BRAX_SAC` (DDPG, TD3), else
+  ``fast`` on a GPU/TPU backend, else ``cpu``.
 
 Environment settings (reward, physics mode, …) stay apart from algorithm settings: a preset
 returns a :class:`PPOConfig` and env overrides separately.
