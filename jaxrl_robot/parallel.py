@@ -49,7 +49,6 @@ __all__ = [
     "P",
     "all_gather",
     "global_lane_ids",
-    "disabled_passes",
     "initialize_multihost",
     "jit_seeds",
     "lane_map_impl",
@@ -120,33 +119,19 @@ def shard_lanes(
     return _vmap_lanes(fn, mesh, in_specs, out_specs)
 
 
-CPU_SEED_DISABLED_PASS = "constant_folding"
-"""The XLA pass :func:`jit_seeds` turns off on the CPU backend."""
-
-
-def disabled_passes() -> list[str]:
-    """The XLA passes that ``XLA_FLAGS`` turns off (``--xla_disable_hlo_passes=a,b``), in order."""
-    passes: list[str] = []
-    for flag in os.environ.get("XLA_FLAGS", "").split():
-        if flag.startswith("--xla_disable_hlo_passes="):
-            passes += [p for p in flag.split("=", 1)[1].split(",") if p and p not in passes]
-    return passes
+CPU_SEED_COMPILER_OPTIONS = {"xla_disable_hlo_passes": "constant_folding"}
+"""XLA options of :func:`jit_seeds`'s programs on the CPU backend."""
 
 
 def jit_seeds(fn: Callable[..., Any], in_axes: Any = 0) -> Callable[..., Any]:
     """``jax.jit(jax.vmap(fn, in_axes))``: one compiled program for a leading seed axis.
 
     On the CPU backend the program is compiled without XLA's constant folding
-    (:data:`CPU_SEED_DISABLED_PASS`), besides the passes ``XLA_FLAGS`` turns off (a program's own
-    ``xla_disable_hlo_passes`` replaces the flag's list, so both are given; ``envs_mjx`` turns off
-    ``algsimp`` on the CPU). Folding the vmapped MJX physics of brax's walker2d inside an
-    off-policy trainer stops XLA:CPU's compiler with a floating-point exception (SIGFPE in its
+    (:data:`CPU_SEED_COMPILER_OPTIONS`). Folding the vmapped MJX physics of brax's walker2d inside
+    an off-policy trainer stops XLA:CPU's compiler with a floating-point exception (SIGFPE in its
     constant-folding pass; jax 0.10.2). Without the pass, the same program compiles and runs.
     """
-    options = None
-    if jax.default_backend() == "cpu":
-        passes = [*disabled_passes(), CPU_SEED_DISABLED_PASS]
-        options = {"xla_disable_hlo_passes": ",".join(dict.fromkeys(passes))}
+    options = CPU_SEED_COMPILER_OPTIONS if jax.default_backend() == "cpu" else None
     return jax.jit(jax.vmap(fn, in_axes=in_axes), compiler_options=options)
 
 
