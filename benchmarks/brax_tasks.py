@@ -258,9 +258,9 @@ def ours(env: Any, task: str, row: dict[str, float], steps: int, seeds: int, eva
     keys, eval_keys = jax.random.split(jax.random.PRNGKey(0), seeds), jax.random.split(jax.random.PRNGKey(1), seeds)
     t0 = time.perf_counter()
     if seed_map == "vmap":
-        curves, curves_mean, per_chunk = run(parallel.jit_seeds(trainer.init),
-                                             parallel.jit_seeds(segment, in_axes=(0, 0, None, None)),
-                                             parallel.jit_seeds(test), keys, eval_keys, report)  # fmt: skip
+        curves, curves_mean, per_chunk = run(jax.jit(jax.vmap(trainer.init)),
+                                             jax.jit(jax.vmap(segment, in_axes=(0, 0, None, None))),
+                                             jax.jit(jax.vmap(test)), keys, eval_keys, report)  # fmt: skip
     else:
         init_one, seg_one, test_one = jax.jit(trainer.init), jax.jit(segment), jax.jit(test)
         runs: list[tuple[np.ndarray, ...]] = []
@@ -422,8 +422,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                    help="write one report from results files of this benchmark (e.g. ours and brax's run on two "
                    "GPUs at once): per task, our side and brax's from the files that ran them")  # fmt: skip
     p.add_argument("--seed-map", default="loop", choices=["loop", "vmap"],
-                   help="our seeds: one program called per seed, or one vmapped program "
-                   "(jaxrl_robot.parallel.jit_seeds)")  # fmt: skip
+                   help="our seeds: one program called per seed, or one vmapped program (an accelerator's only: "
+                   "XLA's CPU compiler stops with a floating point exception on the vmapped MJX program, "
+                   "jax 0.10.2)")  # fmt: skip
     p.add_argument("--devices", type=int, default=1,
                    help="devices our lanes are spread over (0: all; more than 1 with --seed-map loop)")
     p.add_argument("--out", default=RESULTS)
@@ -437,6 +438,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         p.error("--no-brax and --no-ours: nothing would run; give at most one")
     if not 0 <= args.devices <= jax.device_count():
         p.error(f"--devices {args.devices}: this machine has {jax.device_count()} (0: all of them)")
+    if args.seed_map == "vmap" and not args.no_ours and jax.default_backend() == "cpu":
+        p.error("--seed-map vmap: on the CPU, XLA stops with a floating-point exception compiling our trainer "
+                "vmapped over seeds on brax's MJX envs (jax 0.10.2); use --seed-map loop")
     if args.seed_map == "vmap" and args.seeds > 1 and (args.devices or jax.device_count()) > 1:
         p.error(f"--seed-map vmap runs its {args.seeds} seeds on one device; add --devices 1 or --seed-map loop")
     args.eval_mode = args.eval_mode or default_eval_mode(args.algo)

@@ -50,7 +50,6 @@ __all__ = [
     "all_gather",
     "global_lane_ids",
     "initialize_multihost",
-    "jit_seeds",
     "lane_map_impl",
     "lane_mesh",
     "lane_sharding",
@@ -117,22 +116,6 @@ def shard_lanes(
     if lane_map_impl(mesh, impl) == "shard_map":
         return jax.shard_map(fn, mesh=mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False)
     return _vmap_lanes(fn, mesh, in_specs, out_specs)
-
-
-CPU_SEED_COMPILER_OPTIONS = {"xla_disable_hlo_passes": "constant_folding"}
-"""XLA options of :func:`jit_seeds`'s programs on the CPU backend."""
-
-
-def jit_seeds(fn: Callable[..., Any], in_axes: Any = 0) -> Callable[..., Any]:
-    """``jax.jit(jax.vmap(fn, in_axes))``: one compiled program for a leading seed axis.
-
-    On the CPU backend the program is compiled without XLA's constant folding
-    (:data:`CPU_SEED_COMPILER_OPTIONS`). Folding the vmapped MJX physics of brax's walker2d inside
-    an off-policy trainer stops XLA:CPU's compiler with a floating-point exception (SIGFPE in its
-    constant-folding pass; jax 0.10.2). Without the pass, the same program compiles and runs.
-    """
-    options = CPU_SEED_COMPILER_OPTIONS if jax.default_backend() == "cpu" else None
-    return jax.jit(jax.vmap(fn, in_axes=in_axes), compiler_options=options)
 
 
 def _is_spec(x: Any) -> bool:

@@ -666,9 +666,9 @@ class SeedProgram:
                                lambda tree, i: tree[i], lambda ms: [floats(m) for m in ms])  # fmt: skip
 
         def init_all(seeds: Sequence[int]) -> Any:
-            return parallel.jit_seeds(trainer.init)(jnp.stack([jax.random.PRNGKey(k) for k in seeds]))
+            return jax.jit(jax.vmap(trainer.init))(jnp.stack([jax.random.PRNGKey(k) for k in seeds]))
 
-        return SeedProgram(init_all, parallel.jit_seeds(trainer.update),
+        return SeedProgram(init_all, jax.jit(jax.vmap(trainer.update)),
                            lambda tree, i: jax.tree.map(lambda x: x[i], tree),
                            lambda m: [{k: float(v[i]) for k, v in m.items()} for i in range(n)])  # fmt: skip
 
