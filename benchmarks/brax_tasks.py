@@ -14,7 +14,9 @@ Off-policy (``--algo td3`` or ``ddpg``): the tasks brax trains with SAC (:data:`
 hopper and walker2d), brax's ``sac.train`` with the row as it is, ours through
 :func:`train.presets.brax_sac_ddpg_config`: the same envs, memory and networks, with TD3's own settings
 (one update per env step on mini-batches of 256, γ 0.99, unscaled rewards; ``--ours own_settings=false``:
-the row's ``grad_updates_per_step`` per ``num_envs`` env steps, discount and reward scaling). The updates
+the row's ``grad_updates_per_step`` per ``num_envs`` env steps, discount and reward scaling), for the
+env steps brax's SAC makes of the budget (:func:`brax_sac_steps`), split into update calls that end on
+that count where it allows (:func:`update_chunk`). The updates
 dominate the wall time: where env steps are cheap (thousands of simulated lanes) PPO's budget of 10–50 M
 steps usually takes less time than the off-policy budget of a few million, and an off-policy method
 is the tool when env steps are what costs (a real robot, a slow simulator).
@@ -103,6 +105,17 @@ def brax_ppo_steps(row: dict[str, float], steps: int, num_evals: int = 10) -> in
     return epochs * per_step * math.ceil(steps / (epochs * per_step))
 
 
+def brax_sac_steps(row: dict[str, float], steps: int, num_evals: int = 10) -> int:
+    """The env steps brax's ``sac.train`` makes of a ``steps`` budget (brax/training/agents/sac/train.py):
+    a prefill of ``ceil(min_replay_size / num_envs)`` actor steps, then ``num_evals − 1`` epochs of
+    ``ceil((steps − prefill) / ((num_evals − 1) · num_envs · action_repeat))`` actor steps each, an actor
+    step being ``num_envs · action_repeat`` env steps; so never fewer than ``steps``."""
+    per_step = int(row["num_envs"]) * int(row.get("action_repeat", 1))
+    prefill = -(-int(row["min_replay_size"]) // int(row["num_envs"])) * per_step
+    epochs = max(num_evals - 1, 1)
+    return prefill + epochs * per_step * -(-max(steps - prefill, 0) // (epochs * per_step))
+
+
 def our_config(algo: str, task: str, action_size: int, row: dict[str, float], steps: int,
                overrides: dict[str, Any] | None = None) -> Any:  # fmt: skip
     """Our validated config of ``algo`` for the task's ``row`` and ``steps`` env steps, with ``overrides``
@@ -137,9 +150,17 @@ def our_trainer(algo: str, task: str, env: Any, row: dict[str, float], steps: in
 
 
 def update_chunk(iterations: int, calls: int = 20) -> int:
-    """Iterations per ``update`` call of an off-policy run of ``iterations``: ``calls`` calls (the points
-    the evaluations pick from), which overshoot the budget by fewer than ``calls`` iterations."""
-    return -(-iterations // calls)
+    """Iterations per ``update`` call of an off-policy run of ``iterations``: of the call counts from
+    ``calls // 2`` to ``2 · calls`` (the points the evaluations pick from), the one whose calls overshoot
+    the budget least, then the one nearest ``calls``, then the larger; ``calls`` calls of
+    ``ceil(iterations / calls)`` overshoot by fewer than ``calls`` iterations, so the pick does too, and a
+    count of iterations with a divisor in that range (brax's SAC counts of :func:`brax_sac_steps`) is run
+    exactly. Fewer iterations than ``calls // 2``: one per call."""
+    counts = range(max(calls // 2, 1), min(2 * calls, iterations) + 1)
+    if not counts:
+        return 1
+    best = min(counts, key=lambda c: (c * -(-iterations // c) - iterations, abs(c - calls), -c))
+    return -(-iterations // best)
 
 
 EVAL_MODES = ("stochastic", "deterministic")
@@ -473,7 +494,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         env = brax_envs.get_environment(task, backend=args.backend)
         steps = args.steps or int(table[task]["num_timesteps"])
         settings = {**brax_row(task, args.num_envs, args.algo), **pairs(args.row)}
-        our_steps = brax_ppo_steps(settings, steps, args.evals) if args.algo == "ppo" else steps  # brax's count
+        counts = brax_ppo_steps if args.algo == "ppo" else brax_sac_steps
+        our_steps = counts(settings, steps, args.evals)  # brax's count of env steps
         row = {"task": task, "settings": settings, "sides": []}
         result["tasks"].append(row)
         if not args.no_ours:
