@@ -13,7 +13,8 @@ return at equal env steps, wall time, steps/s.
 Off-policy (``--algo td3`` or ``ddpg``): the tasks brax trains with SAC (:data:`train.presets.BRAX_SAC`,
 hopper and walker2d), brax's ``sac.train`` with the row as it is, ours through
 :func:`train.presets.brax_sac_ddpg_config`: the same envs, memory and networks, with TD3's own settings
-(one update per env step on mini-batches of 256, γ 0.99, unscaled rewards; ``--ours own_settings=false``:
+(mini-batches of 256, γ 0.99, unscaled rewards) and two updates per env step on hopper and walker2d
+(:data:`train.presets.BRAX_SAC_TUNED`; ``--ours tuned=false``: TD3's one; ``--ours own_settings=false``:
 the row's ``grad_updates_per_step`` per ``num_envs`` env steps, discount and reward scaling), for the
 env steps brax's SAC makes of the budget (:func:`brax_sac_steps`), split into update calls that end on
 that count where it allows (:func:`update_chunk`). The updates
@@ -123,15 +124,16 @@ def our_config(algo: str, task: str, action_size: int, row: dict[str, float], st
     PPO's ``segments=true|false`` among them picks brax's own update or the thesis's
     (:func:`train.presets.brax_ppo_config`'s ``segments``; by default the task's preset) and
     ``tuned=false`` leaves out the task's :data:`train.presets.BRAX_PPO_TUNED` fields; TD3's and
-    DDPG's ``own_settings=true|false`` TD3's own settings or the SAC row's
+    DDPG's ``own_settings=true|false`` TD3's own settings or the SAC row's, and ``tuned=false`` leaves
+    out the task's :data:`train.presets.BRAX_SAC_TUNED` entries
     (:func:`train.presets.brax_sac_ddpg_config`)."""
     overrides = dict(overrides or {})
+    tuned = bool(overrides.pop("tuned", True))
     if algo == "ppo":
         segments = overrides.pop("segments", None)  # None: the task's preset
-        tuned = bool(overrides.pop("tuned", True))
         config = brax_ppo_config(task, action_size, None if segments is None else bool(segments), tuned, **row)
     else:
-        config = brax_sac_ddpg_config(task, bool(overrides.pop("own_settings", True)), **row)
+        config = brax_sac_ddpg_config(task, bool(overrides.pop("own_settings", True)), tuned, **row)
         config = config.replace(**TD3_SETTINGS) if algo == "td3" else config
     return apply_overrides(config.replace(total_steps=steps), overrides, type(config).__name__).validate()
 

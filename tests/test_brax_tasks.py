@@ -335,6 +335,9 @@ def test_our_config_takes_overrides_and_a_bad_one_is_a_one_line_error(capsys):
     assert (reacher["tuned"].actor_lr, reacher["tuned"].max_grad_norm) == (1e-3, 1.0)
     row = reacher["row"]
     assert (row.actor_lr, row.max_grad_norm, row.lr_schedule) == (3e-4, 0.0, "constant")
+    walker = {t: brax_tasks.our_config("td3", "walker2d", 6, BRAX_SAC["walker2d"], 1000, o)
+              for t, o in (("tuned", {}), ("td3", {"tuned": False}))}  # fmt: skip
+    assert (walker["tuned"].updates_per_iteration, walker["td3"].updates_per_iteration) == (256, 128)  # 128 lanes
     for bad, message in (("nope=1", "unknown setting 'nope'"), ("clip_actions=true", "exclude each other")):
         try:
             brax_tasks.main(["--tasks", "halfcheetah", "--ours", bad])

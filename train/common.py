@@ -88,7 +88,7 @@ from jaxrl_robot.evaluation import (
 from jaxrl_robot.logging import MetricsLogger, read_csv
 from jaxrl_robot.plots import plot_tracking, plot_training_curves
 from jaxrl_robot.types import Trainer, as_recurrent
-from train.presets import BRAX_PPO_TUNED, brax_task, resolve_preset
+from train.presets import BRAX_PPO_TUNED, BRAX_SAC_TUNED, brax_sac_task, brax_task, resolve_preset
 
 __all__ = [
     "AlgorithmCLI",
@@ -865,6 +865,8 @@ class AlgorithmCLI:
             preset = resolve_preset(known.preset, known.env, self.name)
             if known.preset == "auto" and preset == "brax" and not any(a in ("-h", "--help") for a in argv):
                 source = ("brax's SAC lanes and memory with TD3's own update settings", "BRAX_SAC, TD3_OWN")
+                if self.name != "ppo" and brax_sac_task(known.env) in BRAX_SAC_TUNED:
+                    source = (f"{source[0]} and our tuned entries over them", f"{source[1]}, BRAX_SAC_TUNED")
                 if self.name == "ppo":
                     source = ("brax's published PPO settings", "BRAX_PPO")
                     if brax_task(known.env) in BRAX_PPO_TUNED:

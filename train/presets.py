@@ -13,8 +13,9 @@ PPO presets:
 * ``fast`` — thousands of lanes for one GPU (the default with an accelerator).
 * ``brax`` (PPO, DDPG and TD3) — PPO: brax's published PPO settings for its standard tasks
   (:data:`BRAX_PPO`, converted by :func:`brax_ppo_config`, with our fields of :data:`BRAX_PPO_TUNED`
-  over the tasks it names); DDPG and TD3: brax's SAC lanes and memory with TD3's own update settings
-  (:data:`BRAX_SAC`, :data:`TD3_OWN`, :func:`brax_sac_ddpg_config`).
+  over the tasks it names); DDPG and TD3: brax's SAC lanes and memory with TD3's own update settings and
+  our tuned entries over them (:data:`BRAX_SAC`, :data:`TD3_OWN`, :data:`BRAX_SAC_TUNED`,
+  :func:`brax_sac_ddpg_config`).
 * ``auto`` — ``brax`` for the tasks of :data:`BRAX_PPO` (PPO) or :data:`BRAX_SAC` (DDPG, TD3), else
   ``fast`` on a GPU/TPU backend, else ``cpu``.
 
@@ -38,6 +39,7 @@ __all__ = [
     "BRAX_PPO_TUNED",
     "BRAX_SAC",
     "BRAX_SAC_COLUMNS",
+    "BRAX_SAC_TUNED",
     "TD3_OWN",
     "a2c_preset",
     "brax_ppo_config",
@@ -189,15 +191,31 @@ TD3_OWN = dict(updates_per_env_step=1, batch_size=256, learning_rate=3e-4, rando
 """TD3's own settings (Fujimoto et al. 2018; also Stable-Baselines3's TD3 defaults) for brax's SAC tasks:
 one update per env step on mini-batches of 256 at learning rate 3e-4, uniform random actions until
 learning starts, γ 0.99 on unscaled rewards, exploration σ 0.1. :func:`brax_sac_ddpg_config` puts them
-in place of the row's unless ``own_settings=False``.
+in place of the row's unless ``own_settings=False``, with a task's :data:`BRAX_SAC_TUNED` entries over them.
 
-Measured with 8 vmapped seeds on one H200 host (``benchmarks/results/gpu-nvidia_h200-brax_tasks-td3-*``):
-hopper at 209 664 env steps 1992 ± 950 (σ 0.2: 932 ± 398; σ 0.3: 1581 ± 1083; with the row's γ 0.997
-and reward × 30, 3 seeds on H100s: 1006 ± 6, upright without moving on); walker2d at 104 832 steps
-381 ± 92 (with the row's γ 0.997 and reward × 5: 670 ± 288)."""
+Measured alone with 8 vmapped seeds on one H200 host (``benchmarks/results/gpu-nvidia_h200-brax_tasks-td3-*``),
+at brax's SAC step counts (200 192 and 100 352): hopper 1286 ± 845 and 1608 ± 782 in two runs of the same
+seeds, walker2d 421 ± 185 (``…-td3-hopper-sweep.md``). At 209 664 and 104 832 steps: hopper 1992 ± 950
+(σ 0.2: 932 ± 398; σ 0.3: 1581 ± 1083; with the row's γ 0.997 and reward × 30, 3 seeds on H100s: 1006 ± 6,
+upright without moving on); walker2d 381 ± 92 (with the row's γ 0.997 and reward × 5: 670 ± 288)."""
+
+BRAX_SAC_TUNED: dict[str, dict[str, float]] = {
+    # two updates per env step (an update-to-data ratio of 2) instead of TD3's one
+    "hopper": dict(updates_per_env_step=2),
+    "walker2d": dict(updates_per_env_step=2),
+}
+"""Entries of :data:`TD3_OWN` replaced per task (:func:`brax_sac_ddpg_config`'s ``tuned``), measured with
+TD3 (DDPG takes them too, unmeasured).
+
+At brax's SAC step counts, mean action, on one H200 host (``benchmarks/results/gpu-nvidia_h200-brax_tasks-td3-*``):
+hopper 2414 ± 828 over 16 vmapped seeds against brax's SAC 1925 ± 687 (8 seeds), walker2d 832 ± 696 over 8
+against 265 ± 70 (7), ``…-td3-tuned.md``. Chosen from a sweep of 7 settings on hopper, 8 seeds each
+(``…-td3-hopper-sweep.md``): two updates per env step 2478 ± 946, critic learning rate 1e-3 1882 ± 1058,
+τ 0.01 1586 ± 1045, mini-batches of 512 1547 ± 876, TD3's own 1286 ± 845, learning from 25 600 steps
+1035 ± 410, observations unnormalised 690 ± 432."""
 
 
-def brax_sac_ddpg_config(task: str, own_settings: bool = True, **row: float) -> DDPGConfig:
+def brax_sac_ddpg_config(task: str, own_settings: bool = True, tuned: bool = True, **row: float) -> DDPGConfig:
     """The DDPG :class:`DDPGConfig` of ``BRAX_SAC[task]`` (entries updated by ``row``; ``KeyError`` naming
     the tasks for an unknown one); TD3 adds ``train.td3.TD3_SETTINGS``.
 
@@ -207,9 +225,10 @@ def brax_sac_ddpg_config(task: str, own_settings: bool = True, **row: float) -> 
     min_replay_size``, brax's SAC networks (2 × 256) and τ 0.005, normalised observations, Gaussian
     exploration where SAC samples its stochastic policy. The rest:
 
-    * ``own_settings=True`` (default), :data:`TD3_OWN`: ``num_envs`` updates per iteration (one per env
-      step) on mini-batches of 256 at learning rate 3e-4, random actions before learning starts
-      (``random_start``), γ 0.99, rewards unscaled, exploration σ 0.1;
+    * ``own_settings=True`` (default), :data:`TD3_OWN` with the task's :data:`BRAX_SAC_TUNED` entries over
+      it unless ``tuned=False``: ``num_envs`` updates per iteration (one per env step; two with the tuned
+      entries of hopper and walker2d) on mini-batches of 256 at learning rate 3e-4, random actions before
+      learning starts (``random_start``), γ 0.99, rewards unscaled, exploration σ 0.1;
     * ``own_settings=False``: the row's — ``grad_updates_per_step`` updates on ``batch_size`` at its
       ``learning_rate``, its ``discounting`` and ``reward_scaling``, the actor acting from the first step
       with σ 0.1 (TD3's)."""
@@ -217,8 +236,8 @@ def brax_sac_ddpg_config(task: str, own_settings: bool = True, **row: float) -> 
         raise KeyError(f"no brax SAC settings for {task!r}; known: {', '.join(BRAX_SAC)}")
     b = {**BRAX_SAC[task], **row}
     lanes = int(b["num_envs"])
+    o = {**TD3_OWN, **(BRAX_SAC_TUNED.get(task, {}) if tuned else {})}
     if own_settings:
-        o = TD3_OWN
         updates, batch, lr = lanes * int(o["updates_per_env_step"]), int(o["batch_size"]), float(o["learning_rate"])
         gamma, scale, sigma = float(o["gamma"]), float(o["reward_scale"]), float(o["noise_scale"])
     else:
@@ -227,7 +246,7 @@ def brax_sac_ddpg_config(task: str, own_settings: bool = True, **row: float) -> 
     return DDPGConfig(
         schedule="steps", total_steps=int(b["num_timesteps"]), num_envs=lanes, unroll_length=1,
         updates_per_iteration=updates, batch_size=batch, buffer_size=int(b["max_replay_size"]),
-        learning_starts=int(b["min_replay_size"]), random_start=own_settings and bool(TD3_OWN["random_start"]),
+        learning_starts=int(b["min_replay_size"]), random_start=own_settings and bool(o["random_start"]),
         gamma=gamma, reward_scale=scale, actor_lr=lr, critic_lr=lr, tau=0.005,
         normalize_obs=True, actor_hidden=(256, 256), critic_hidden=(256, 256), noise="gaussian", noise_scale=(sigma,),
         episode_length=int(b["episode_length"]),

@@ -348,14 +348,19 @@ def test_brax_preset_converts_brax_settings_and_auto_picks_it(capsys):
 
 def test_td3_and_ddpg_brax_preset_is_the_sac_row_with_td3_s_own_settings_and_auto_picks_it(capsys):
     """``python -m train.td3 --env brax:hopper``: brax's hopper SAC lanes and memory (128 lanes, 2^20 rows
-    filled to 8192 first, 6 553 600 steps, 2 × 256 nets) with TD3's own settings (128 updates per iteration
-    of 128 env steps on 256 rows at 3e-4, γ 0.99, reward × 1, σ 0.1, random start) and TD3's critics;
-    distributed: 8 + 8 workers of 16 lanes, the batch split; DDPG on an env without a row: hopper's with
-    the env's own episode length; an unknown brax task keeps the generic presets."""
+    filled to 8192 first, 6 553 600 steps, 2 × 256 nets) with TD3's own settings (on 256 rows at 3e-4,
+    γ 0.99, reward × 1, σ 0.1, random start) and hopper's tuned two updates per env step (256 per iteration
+    of 128 env steps; ``tuned=False``: TD3's 128) and TD3's critics; distributed: 8 + 8 workers of 16
+    lanes, the batch split; DDPG on an env without a row: hopper's with the env's own episode length; an
+    unknown brax task keeps the generic presets."""
     hop = td3_cli.parse(["--env", "brax:hopper"])
-    assert hop.preset == "brax" and "preset: brax (brax's SAC lanes and memory" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert hop.preset == "brax" and "preset: brax (brax's SAC lanes and memory with TD3's own update settings " \
+        "and our tuned entries over them for brax:hopper; train/presets.py BRAX_SAC, TD3_OWN, BRAX_SAC_TUNED)" in err
     c = hop.td3
-    assert (c.num_envs, c.unroll_length, c.updates_per_iteration, c.batch_size) == (128, 1, 128, 256)
+    assert (c.num_envs, c.unroll_length, c.updates_per_iteration, c.batch_size) == (128, 1, 256, 256)
+    assert presets.brax_sac_ddpg_config("hopper", tuned=False).updates_per_iteration == 128
+    assert presets.brax_sac_ddpg_config("walker2d", num_envs=16).updates_per_iteration == 32
     assert (c.buffer_size, c.learning_starts, c.total_steps, c.actor_hidden) == (1_048_576, 8192, 6_553_600, (256, 256))
     assert (c.gamma, c.reward_scale, c.noise_scale, c.actor_lr, c.episode_length) == (0.99, 1.0, (0.1,), 3e-4, 1000)
     assert c.random_start and c.twin_critics and c.policy_delay == 2 and c.normalize_obs
@@ -369,7 +374,7 @@ def test_td3_and_ddpg_brax_preset_is_the_sac_row_with_td3_s_own_settings_and_aut
 def test_brax_sac_settings_convert_to_ddpg_by_hand():
     """brax's hopper SAC row (128 envs stepped once, then 64 updates on 512 transitions, memory 2^20 filled to
     8192 first, γ 0.997, reward × 30, lr 6e-4): the same schedule in DDPG's terms with ``own_settings=False``;
-    by default TD3's own (128 updates on 256 at 3e-4, random actions first, γ 0.99, reward × 1, σ 0.1);
+    with ``tuned=False`` TD3's own (128 updates on 256 at 3e-4, random actions first, γ 0.99, reward × 1, σ 0.1);
     --num-envs keeps the batch."""
     c = presets.brax_sac_ddpg_config("hopper", own_settings=False)
     schedule = (c.schedule, c.num_envs, c.unroll_length, c.updates_per_iteration, c.batch_size)
@@ -377,7 +382,7 @@ def test_brax_sac_settings_convert_to_ddpg_by_hand():
     assert (c.buffer_size, c.learning_starts, c.gamma, c.reward_scale) == (1_048_576, 8192, 0.997, 30.0)
     assert c.actor_lr == c.critic_lr == 6e-4 and c.actor_hidden == c.critic_hidden == (256, 256) and c.normalize_obs
     assert c.iterations == 6_553_600 // 128 and not c.random_start and c.noise_scale == (0.1,)
-    own = presets.brax_sac_ddpg_config("hopper", num_envs=16)
+    own = presets.brax_sac_ddpg_config("hopper", tuned=False, num_envs=16)
     assert (own.num_envs, own.updates_per_iteration, own.batch_size) == (16, 16, 256)
     assert own.actor_lr == own.critic_lr == 3e-4
     assert own.random_start and (own.learning_starts, own.gamma, own.reward_scale) == (8192, 0.99, 1.0)
