@@ -593,7 +593,8 @@ def merge(paths: list[str], out: str, argv: list[str] | None = None, label: str 
                 merged["sides"] = sorted(set(merged["sides"]) | {side}, reverse=True)
     for part, path in zip(parts, paths, strict=True):
         part["provenance"].setdefault("note", f"merged from {os.path.basename(path)}")
-    ran_ours = [p for p in parts if any("ours" in (r.get("sides") or r) for r in p["tasks"])]
+    ran_ours, ran_brax = ([p for p in parts if any(side in (r.get("sides") or r) for r in p["tasks"])]
+                          for side in ("ours", "brax"))  # a file's seeds count for the sides it ran
     named = (ran_ours or parts)[-1]  # the file is named after the device our side last ran on
     stem = stem_of(out, named["device"], first.get("algo", "ppo"), label)
     prov = provenance.record("benchmarks.brax_tasks", argv, device_info=named["provenance"]["device"],
@@ -603,8 +604,9 @@ def merge(paths: list[str], out: str, argv: list[str] | None = None, label: str 
              "device": named["device"]}
     sources = [source for p in parts for source in [*p.get("sources", []), p["provenance"]]]
     result = {**first, "tasks": list(tasks.values()), "figures": stem + "-figures", "merged_from": paths,
-              "seeds": max(p["seeds"] for p in parts), "brax_seeds": max([p["brax_seeds"] for p in parts]
-                                                + [len(t["brax"]["returns"]) for t in tasks.values() if "brax" in t]),
+              "seeds": max(p["seeds"] for p in ran_ours or parts),
+              "brax_seeds": max([p["brax_seeds"] for p in ran_brax]
+                                + [len(t["brax"]["returns"]) for t in tasks.values() if "brax" in t] or [0]),
               "provenance": prov, "sources": sources, **({"note": note} if note else {})}  # fmt: skip
     write(stem, result, earlier=result["sources"], echo=True)
     return result

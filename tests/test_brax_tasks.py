@@ -136,6 +136,12 @@ def test_a_killed_brax_run_keeps_the_seeds_it_finished(tmp_path):
     open(brax, "w").write(json.dumps(part))
     brax_tasks.main(["--merge", brax, "--out", str(tmp_path / "out")])
     assert "| 900.0 ± 0.0 (sampled) (1 of 3 seeds) |" in (tmp_path / "out" / "gpu-x-brax_tasks.md").read_text()
+    # a file of ours alone (its brax_seeds: --seeds, 16) does not count for brax's side, nor brax's for ours
+    ours = json.loads(open(_part(tmp_path, "ours16", "ours", [1000.0] * 16, 10.0)).read())
+    part["seeds"], part["brax_seeds"] = 20, 1  # brax's run with --seeds 20 --brax-seeds 1
+    open(brax, "w").write(json.dumps(part))
+    result = brax_tasks.main(["--merge", brax, str(tmp_path / "ours16.json"), "--out", str(tmp_path / "out")])
+    assert (result["seeds"], result["brax_seeds"], ours["brax_seeds"]) == (16, 1, 16)
 
 
 def test_a_side_cut_short_shows_its_steps_and_is_not_compared(tmp_path):
