@@ -118,7 +118,7 @@ def brax_ppo_config(task: str, action_size: int, segments: bool | None = None, t
     (``benchmarks/results/*brax_tasks-5M*``): brax's update — halfcheetah 1858 ± 272 against 1704 ±
     316, reacher with the row alone −20.7 ± 0.7 against −20.5 ± 1.0 (both on H200s; the thesis's update:
     1295 ± 79 and −22.6 ± 0.7; reacher's tuned fields: :data:`BRAX_PPO_TUNED`); the thesis's update —
-    hopper 492 ± 89 against 425 ± 87 (brax's update: 363 ± 16),
+    hopper 492 ± 89 against 407 ± 75 (brax's update: 363 ± 16),
     inverted_double_pendulum 9169 ± 212 against 2218 ± 1437 (brax's update: 4133 ± 1697),
     inverted_pendulum 1000 on every side.
     """
@@ -195,7 +195,7 @@ in place of the row's unless ``own_settings=False``, with a task's :data:`BRAX_S
 
 Measured alone with 8 vmapped seeds on one H200 host (``benchmarks/results/gpu-nvidia_h200-brax_tasks-td3-*``),
 at brax's SAC step counts (200 192 and 100 352): hopper 1286 ± 845 and 1608 ± 782 in two runs of the same
-seeds, walker2d 421 ± 185 (``…-td3-hopper-sweep.md``). At 209 664 and 104 832 steps: hopper 1992 ± 950
+seeds, walker2d 421 ± 185 (``…-td3-sweep.md``). At 209 664 and 104 832 steps: hopper 1992 ± 950
 (σ 0.2: 932 ± 398; σ 0.3: 1581 ± 1083; with the row's γ 0.997 and reward × 30, 3 seeds on H100s: 1006 ± 6,
 upright without moving on); walker2d 381 ± 92 (with the row's γ 0.997 and reward × 5: 670 ± 288)."""
 
@@ -209,8 +209,8 @@ TD3 (DDPG takes them too, unmeasured).
 
 At brax's SAC step counts, mean action, on one H200 host (``benchmarks/results/gpu-nvidia_h200-brax_tasks-td3-*``):
 hopper 2414 ± 828 over 16 vmapped seeds against brax's SAC 1925 ± 687 (8 seeds), walker2d 832 ± 696 over 8
-against 265 ± 70 (7), ``…-td3-tuned.md``. Chosen from a sweep of 7 settings on hopper, 8 seeds each
-(``…-td3-hopper-sweep.md``): two updates per env step 2478 ± 946, critic learning rate 1e-3 1882 ± 1058,
+against 275 ± 77 (7), ``…-td3-tuned.md``. Chosen from a sweep of 7 settings on hopper, 8 seeds each
+(``…-td3-sweep.md``): two updates per env step 2478 ± 946, critic learning rate 1e-3 1882 ± 1058,
 τ 0.01 1586 ± 1045, mini-batches of 512 1547 ± 876, TD3's own 1286 ± 845, learning from 25 600 steps
 1035 ± 410, observations unnormalised 690 ± 432."""
 
