@@ -207,12 +207,13 @@ BRAX_SAC_TUNED: dict[str, dict[str, float]] = {
 """Entries of :data:`TD3_OWN` replaced per task (:func:`brax_sac_ddpg_config`'s ``tuned``), measured with
 TD3 (DDPG takes them too, unmeasured).
 
-At brax's SAC step counts, mean action, on one H200 host (``benchmarks/results/gpu-nvidia_h200-brax_tasks-td3-*``):
-hopper 2414 ± 828 over 16 vmapped seeds against brax's SAC 1925 ± 687 (8 seeds), walker2d 497 ± 171 over 16
-against 275 ± 77 (7), ``…-td3-tuned.md`` (on the sweep's 8 keys: walker2d 832 ± 696, TD3's own 421 ± 185). Chosen from a sweep of 7 settings on hopper, 8 seeds each
+At brax's SAC step counts, mean action, on H200s (``benchmarks/results/gpu-nvidia_h200-brax_tasks-td3-*``),
+16 vmapped seeds against brax's SAC (``…-td3-tuned.md``): hopper 2414 ± 828 against 1925 ± 687 (8 seeds),
+walker2d 497 ± 171 against 275 ± 77 (7 seeds). Chosen from a sweep of 7 settings on hopper, 8 seeds each
 (``…-td3-sweep.md``): two updates per env step 2478 ± 946, critic learning rate 1e-3 1882 ± 1058,
 τ 0.01 1586 ± 1045, mini-batches of 512 1547 ± 876, TD3's own 1286 ± 845, learning from 25 600 steps
-1035 ± 410, observations unnormalised 690 ± 432."""
+1035 ± 410, observations unnormalised 690 ± 432; on walker2d's 8 keys 832 ± 696 against TD3's own
+421 ± 185."""
 
 
 def brax_sac_ddpg_config(task: str, own_settings: bool = True, tuned: bool = True, **row: float) -> DDPGConfig:
