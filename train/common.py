@@ -864,13 +864,14 @@ class AlgorithmCLI:
         else:
             preset = resolve_preset(known.preset, known.env, self.name)
             if known.preset == "auto" and preset == "brax" and not any(a in ("-h", "--help") for a in argv):
-                source = ("brax's SAC lanes and memory with TD3's own update settings", "BRAX_SAC, TD3_OWN")
-                if self.name != "ppo" and brax_sac_task(known.env) in BRAX_SAC_TUNED:
-                    source = (f"{source[0]} and our tuned entries over them", f"{source[1]}, BRAX_SAC_TUNED")
                 if self.name == "ppo":
                     source = ("brax's published PPO settings", "BRAX_PPO")
                     if brax_task(known.env) in BRAX_PPO_TUNED:
                         source = (f"{source[0]} with our tuned fields over them", f"{source[1]}, BRAX_PPO_TUNED")
+                else:
+                    source = ("brax's SAC lanes and memory with TD3's own update settings", "BRAX_SAC, TD3_OWN")
+                    if brax_sac_task(known.env) in BRAX_SAC_TUNED:
+                        source = (f"{source[0]} and our tuned entries over them", f"{source[1]}, BRAX_SAC_TUNED")
                 print(f"preset: brax ({source[0]} for {known.env}; train/presets.py {source[1]})", file=sys.stderr)
             fields = ("env", "reward", "env_config", *self.env_fields)
             variant = {k: getattr(known, k) for k in self.preset_fields if getattr(known, k) is not None}
