@@ -59,7 +59,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import time
 from collections.abc import Callable
@@ -96,14 +95,19 @@ def brax_row(task: str, num_envs: int, algo: str = "ppo") -> dict[str, float]:
     return row
 
 
+def whole_epochs(steps: int, per_step: int, num_evals: int) -> int:
+    """The env steps of ``num_evals − 1`` epochs (at least one) of whole training steps of ``per_step`` env
+    steps that cover ``steps``: each epoch ``ceil`` of its share of the budget, as brax's trainers count."""
+    epochs = max(num_evals - 1, 1)
+    return epochs * per_step * -(-max(steps, 0) // (epochs * per_step))
+
+
 def brax_ppo_steps(row: dict[str, float], steps: int, num_evals: int = 10) -> int:
     """The env steps brax's ``ppo.train`` makes of a ``steps`` budget: whole training steps of
     ``batch_size · num_minibatches · unroll_length · action_repeat`` env steps, ``ceil`` of the budget over
     ``num_evals − 1`` epochs of them (brax/training/agents/ppo/train.py), so never fewer than ``steps``."""
     per_step = int(row["batch_size"]) * int(row["num_minibatches"]) * int(row["unroll_length"])
-    per_step *= int(row.get("action_repeat", 1))
-    epochs = max(num_evals - 1, 1)
-    return epochs * per_step * math.ceil(steps / (epochs * per_step))
+    return whole_epochs(steps, per_step * int(row.get("action_repeat", 1)), num_evals)
 
 
 def brax_sac_steps(row: dict[str, float], steps: int, num_evals: int = 10) -> int:
@@ -113,8 +117,7 @@ def brax_sac_steps(row: dict[str, float], steps: int, num_evals: int = 10) -> in
     step being ``num_envs · action_repeat`` env steps; so never fewer than ``steps``."""
     per_step = int(row["num_envs"]) * int(row.get("action_repeat", 1))
     prefill = -(-int(row["min_replay_size"]) // int(row["num_envs"])) * per_step
-    epochs = max(num_evals - 1, 1)
-    return prefill + epochs * per_step * -(-max(steps - prefill, 0) // (epochs * per_step))
+    return prefill + whole_epochs(steps - prefill, per_step, num_evals)
 
 
 def our_config(algo: str, task: str, action_size: int, row: dict[str, float], steps: int,
