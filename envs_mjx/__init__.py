@@ -17,6 +17,7 @@ _xla.import_mjx_quietly()  # without the two "Failed to import warp" lines of MJ
 
 from envs_mjx.base import (  # noqa: E402
     ActionRepeatWrapper,
+    ActionShapeError,
     AutoResetWrapper,
     ClipActionWrapper,
     EpisodeWrapper,
@@ -59,6 +60,7 @@ def make(name: str, **overrides: Any) -> RobotEnv:
 
 __all__ = [
     "ActionRepeatWrapper",
+    "ActionShapeError",
     "AutoResetWrapper",
     "ClipActionWrapper",
     "ConfigError",

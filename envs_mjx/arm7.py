@@ -380,6 +380,7 @@ class Arm7(RobotEnv):
 
     def step(self, state: State, action: jax.Array) -> State:
         """One control step with ``action [3]`` in [-1, 1] (unbatched)."""
+        self.check_action(action)
         a, invalid = sanitize_action(action)
         info = dict(state.info)
         goal = info["goal"]

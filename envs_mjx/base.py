@@ -9,6 +9,11 @@ Conventions shared by all environments:
 * Actions arrive in ``[-1, 1]``; non-finite components are replaced by 0 and counted in
   ``metrics["invalid_action"]``, then the action is clipped and multiplied by the
   environment's scale vector ``C`` (``env.action_scale``).  See :func:`sanitize_action`.
+* ``step`` checks the action's static shape, ``(action_size,)``, and the training wrappers
+  check theirs, ``state.done.shape + (action_size,)`` (``[B, A]`` batched), while tracing: a
+  wrong shape raises :class:`ActionShapeError` instead of broadcasting; nothing is checked at
+  run time.  Any real dtype (float or int) is accepted and converted to float32; bool and
+  complex actions raise the same error.  See :func:`check_action`.
 * ``state.info`` keeps every key it came in with (brax wrappers add their own), so an
   environment's ``step`` updates ``info`` rather than rebuilding it.
 * ``state.info["params"]`` holds *episode parameters*: traced values that a trainer may
@@ -40,12 +45,14 @@ from typing import Any, ClassVar
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from brax.envs.base import Env, State, Wrapper
 
 from envs_mjx.config import apply_overrides
 
 __all__ = [
     "ActionRepeatWrapper",
+    "ActionShapeError",
     "AutoResetWrapper",
     "ClipActionWrapper",
     "EpisodeWrapper",
@@ -54,20 +61,52 @@ __all__ = [
     "State",
     "TanhActionWrapper",
     "VmapWrapper",
+    "check_action",
     "map_lanes",
     "sanitize_action",
     "wrap_for_training",
 ]
 
 
-def sanitize_action(action: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """Replace non-finite components by 0 and clip to [-1, 1].
+class ActionShapeError(ValueError):
+    """An action whose static shape (or dtype) does not fit the env or wrapper stepping it.
+
+    The message is one line naming the env or wrapper, the expected shape and the given one, e.g.
+    ``arm7.step: action has shape (1,), expected (3,) (action_size=3)``."""
+
+
+def check_action(owner: str, action: Any, expected: tuple[int, ...], detail: str) -> None:
+    """Raise :class:`ActionShapeError` unless ``action`` has shape ``expected`` and a real dtype.
+
+    A Python check of static properties, so under ``jit`` / ``vmap`` / ``eval_shape`` it runs once
+    while tracing and costs nothing at run time.  Integer and floating dtypes pass (envs convert
+    them to float32, :func:`sanitize_action`); bool and complex raise.
 
     Args:
-      action: ``[A]`` raw action (unbatched; works batched too).
-    Returns:
-      ``(clean [A], invalid [])`` where ``invalid`` is 1.0 if any component was non-finite.
+      owner: who steps, for the message (``"arm7.step"``, ``"VmapWrapper.step (arm7)"``).
+      action: the action (array, tracer or nested list).
+      expected: its required shape.
+      detail: where ``expected`` comes from (``"action_size=3"``), for the message.
     """
+    shape = tuple(np.shape(action))
+    expected = tuple(int(n) for n in expected)
+    if shape != expected:
+        raise ActionShapeError(f"{owner}: action has shape {shape}, expected {expected} ({detail})")
+    dtype = getattr(action, "dtype", None)
+    dtype = np.asarray(action).dtype if dtype is None else np.dtype(dtype)
+    if not (jnp.issubdtype(dtype, jnp.floating) or jnp.issubdtype(dtype, jnp.integer)):
+        raise ActionShapeError(f"{owner}: action has dtype {dtype}, expected a real number type (float or int)")
+
+
+def sanitize_action(action: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Convert to float32, replace non-finite components by 0 and clip to [-1, 1].
+
+    Args:
+      action: ``[A]`` raw action, any real dtype (unbatched; works batched too).
+    Returns:
+      ``(clean [A] float32, invalid [])`` where ``invalid`` is 1.0 if any component was non-finite.
+    """
+    action = jnp.asarray(action, jnp.float32)
     finite = jnp.isfinite(action)
     clean = jnp.clip(jnp.where(finite, action, 0.0), -1.0, 1.0)
     invalid = jnp.any(~finite, axis=-1).astype(jnp.float32)
@@ -112,6 +151,11 @@ class RobotEnv(Env, abc.ABC):
         """Default time limit in control steps (``config.max_steps``)."""
         return int(self.config.max_steps)
 
+    def check_action(self, action: jax.Array, method: str = "step") -> None:
+        """Raise :class:`ActionShapeError` unless ``action`` is ``[action_size]`` (unbatched) of a real
+        dtype; a trace-time check (:func:`check_action`), which every env's ``step`` makes first."""
+        check_action(f"{self.name}.{method}", action, (self.action_size,), f"action_size={self.action_size}")
+
     def default_params(self) -> dict[str, jax.Array]:
         """Episode parameters (traced, schedulable) used when ``reset`` gets none."""
         return {}
@@ -122,7 +166,7 @@ class RobotEnv(Env, abc.ABC):
 
     @abc.abstractmethod
     def step(self, state: State, action: jax.Array) -> State:
-        """Advance one control step with ``action`` in [-1, 1]^A."""
+        """Advance one control step with ``action [A]`` in [-1, 1]^A; first :meth:`check_action`."""
 
 
 def _reset(env: Env, key: jax.Array, params: Any) -> State:
@@ -133,10 +177,25 @@ def _reset(env: Env, key: jax.Array, params: Any) -> State:
 
 
 class _ParamWrapper(Wrapper):
-    """A wrapper whose ``reset`` forwards optional episode parameters."""
+    """A wrapper whose ``reset`` forwards optional episode parameters and whose ``step`` checks the
+    action's static shape first (:meth:`_check_action`)."""
 
     def reset(self, rng: jax.Array, params: Any = None) -> State:  # noqa: D102
         return _reset(self.env, rng, params)
+
+    def _check_action(self, state: State, action: jax.Array) -> None:
+        """Raise :class:`ActionShapeError` unless ``action`` is ``state.done.shape + (action_size,)``:
+        ``[A]`` for an unbatched state, ``[B, A]`` for ``B`` lanes (checked while tracing).  An env
+        object that declares no ``action_size`` (not a brax ``Env``) is not checked."""
+        size = getattr(self, "action_size", None)
+        if size is None:
+            return
+        size = int(size)
+        inner = getattr(self, "unwrapped", self.env)
+        owner = f"{type(self).__name__}.step ({getattr(inner, 'name', type(inner).__name__)})"
+        batch = tuple(np.shape(state.done))
+        lanes = "" if not batch else f"lanes={batch[0]}, " if len(batch) == 1 else f"batch={batch}, "
+        check_action(owner, action, batch + (size,), f"{lanes}action_size={size}")
 
 
 class ClipActionWrapper(_ParamWrapper):
@@ -153,6 +212,7 @@ class ClipActionWrapper(_ParamWrapper):
         self.low, self.high = float(low), float(high)
 
     def step(self, state: State, action: jax.Array) -> State:
+        self._check_action(state, action)
         return self.env.step(state, jnp.clip(action, self.low, self.high))
 
 
@@ -161,6 +221,7 @@ class TanhActionWrapper(_ParamWrapper):
     the env side of a tanh-squashed Gaussian policy, which keeps its unsquashed sample."""
 
     def step(self, state: State, action: jax.Array) -> State:
+        self._check_action(state, action)
         return self.env.step(state, jnp.tanh(action))
 
 
@@ -178,6 +239,8 @@ class ActionRepeatWrapper(_ParamWrapper):
         self.repeat = int(repeat)
 
     def step(self, state: State, action: jax.Array) -> State:
+        self._check_action(state, action)
+
         def one(carry: tuple[State, jax.Array], _: None) -> tuple[tuple[State, jax.Array], None]:
             s, total = carry
             ended = s.done > 0
@@ -211,6 +274,7 @@ class EpisodeWrapper(_ParamWrapper):
         return state.replace(info=info)
 
     def step(self, state: State, action: jax.Array) -> State:
+        self._check_action(state, action)
         prev_done = state.done.astype(jnp.float32)
         # The inner env steps from done = 0: an env that never writes ``done`` (brax's halfcheetah,
         # reacher) would otherwise carry the time limit's done into every later step.
@@ -245,6 +309,7 @@ class AutoResetWrapper(_ParamWrapper):
         return state.replace(info=info)
 
     def step(self, state: State, action: jax.Array) -> State:
+        self._check_action(state, action)
         nstate = self.env.step(state, action)
         key, sub = jax.random.split(nstate.info["reset_key"])
         fresh = _reset(self.env, sub, nstate.info.get("params"))
@@ -308,6 +373,7 @@ class VmapWrapper(_ParamWrapper):
         return jax.vmap(lambda k: _reset(self.env, k, params))(rng)
 
     def step(self, state: State, action: jax.Array) -> State:
+        self._check_action(state, action)
         return map_lanes(self.env.step, self.lane_group, state, action)
 
 
@@ -388,6 +454,7 @@ class PoolResetWrapper(_ParamWrapper):
         return state.replace(info=info)
 
     def step(self, state: State, action: jax.Array) -> State:
+        self._check_action(state, action)
         nstate = map_lanes(self.env.step, self.lane_group, state, action)
         lanes = nstate.obs.shape[0]
         g, r = self.group_sizes(lanes)

@@ -797,6 +797,7 @@ class RaceCar(RobotEnv):
 
     def step(self, state: State, action: jax.Array) -> State:
         """One control step of ``dt`` with ``action [3]`` in [−1, 1] (unbatched), on the state's road."""
+        self.check_action(action)
         if self.bank is not None:
             return self.driving(state).step(state, action)
         cfg = self.config

@@ -291,6 +291,7 @@ class Scara(tracking.TrackingEnv):
 
     def step(self, state: State, action: jax.Array) -> State:
         """Apply ``Δq = C ⊙ a`` as new servo targets, simulate ``n_substeps``, score against step ``k + 1``."""
+        self.check_action(action)
         cfg = self.config
         a, invalid = sanitize_action(action)
         data = state.pipeline_state

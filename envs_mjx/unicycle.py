@@ -355,6 +355,7 @@ class Unicycle(tracking.TrackingEnv):
         :meth:`step` returns; in ``dynamic`` mode an estimate that ignores the body's inertia.
         The action search of two-stage training (thesis §5.6, Algorithm 9) ranks candidates by it.
         """
+        self.check_action(action, "model_reward")
         cfg = self.config
         cmd = self._scale * jnp.clip(action, -1.0, 1.0)
         pose = state.info["pose"]
@@ -389,6 +390,7 @@ class Unicycle(tracking.TrackingEnv):
 
     def step(self, state: State, action: jax.Array) -> State:
         """Command ``(v, w) = C ⊙ a`` for one control step and score against step ``k + 1``."""
+        self.check_action(action)
         cfg = self.config
         a, invalid = sanitize_action(action)
         cmd = self._scale * a
