@@ -24,7 +24,10 @@ processes of a run over several hosts, parses (the preset's defaults for ``--env
 1. makes ``runs/<algo>-<env>-<time>/`` and writes ``config.json`` (the CLI's full config,
    enough to rebuild the run — ``--resume DIR`` reloads it with :func:`load_config`);
 2. initialises or restores the state (orbax, ``checkpoints/<chunk>/``) — a restored run
-   continues exactly where the checkpoint left it;
+   continues exactly where the checkpoint left it; each checkpoint's files are checked against
+   the SHA-256 sums saved with it, a damaged newest one is skipped for the newest good one, and a
+   ``config.json`` that no longer builds the saved state is an error naming the arrays that differ.
+   The run directory is locked (``.lock``) while a process writes it: a second one stops at once;
 3. calls the jitted ``update`` chunk after chunk, writing ``metrics.csv`` and TensorBoard
    events (``tb/``), drawing a progress bar (only on a terminal, not under CI), saving a
    checkpoint every ``checkpoint_every`` chunks and at the end; SIGINT (Ctrl-C) or SIGTERM stops
@@ -77,7 +80,15 @@ from brax.envs.base import Env
 from jax.sharding import Mesh
 
 from jaxrl_robot import parallel
-from jaxrl_robot.checkpoint import Checkpointer
+from jaxrl_robot.checkpoint import (
+    Checkpointer,
+    CheckpointError,
+    CheckpointMismatchError,
+    CheckpointWriteError,
+    DirectoryInUseError,
+    DirectoryLock,
+    Restored,
+)
 from jaxrl_robot.evaluation import (
     PRECISION_THRESHOLDS,
     precision_summary,
@@ -106,9 +117,11 @@ __all__ = [
     "iterations_per_chunk",
     "lane_mesh",
     "load_config",
+    "lock_run_dir",
     "make_env",
     "make_run_dir",
     "preparse",
+    "restore_run",
     "run",
     "settings_of",
     "use_progress_bar",
@@ -473,18 +486,89 @@ def stop_on_signals(enabled: bool = True):
 
 
 def run(spec: RunSpec) -> dict[str, Any]:
-    """Train, log, checkpoint and evaluate as the module docstring describes.
+    """Train, log, checkpoint and evaluate as the module docstring describes, holding the run
+    directory's lock (:func:`lock_run_dir`) throughout.
 
     Returns:
       ``{"run_dir", "finished", "env_steps", "wall_s", "compile_s", "eval"}`` (``eval`` only
       when the run finished).
     Raises:
       NonFiniteLossError: a loss became NaN/inf (the last good state is checkpointed first).
+      DirectoryInUseError: another process writes the run directory.
+      CheckpointMismatchError, CheckpointDamagedError: ``--resume`` found no checkpoint it can use
+        (:func:`restore_run`).
+      CheckpointWriteError: a checkpoint could not be written (disk full); earlier ones are kept.
     """
+    run_dir = spec.run_dir if spec.run_dir is not None else make_run_dir(spec.out, spec.algo, spec.env_name)
+    lock = lock_run_dir(run_dir)
+    try:
+        return _run_locked(spec, run_dir)
+    finally:
+        if lock is not None:
+            lock.release()
+
+
+def lock_run_dir(run_dir: str) -> DirectoryLock | None:
+    """Process 0's :class:`~jaxrl_robot.checkpoint.DirectoryLock` of ``run_dir`` (None on the others).
+
+    Raises:
+      DirectoryInUseError: on every process, when another process holds the lock.
+    """
+    lock, taken = None, ""
+    if is_main_process():
+        try:
+            lock = DirectoryLock(run_dir).acquire()
+        except DirectoryInUseError as e:
+            taken = str(e)
+    if jax.process_count() > 1:
+        taken = _broadcast_text(taken)
+    if taken:
+        raise DirectoryInUseError(taken)
+    return lock
+
+
+def restore_run(ckpt: Checkpointer, state: Any, run_dir: str, config: dict[str, Any]) -> Restored | None:
+    """The newest good checkpoint of ``run_dir`` restored into ``state``'s structure (None: none yet);
+    prints (process 0, stderr) which damaged ones it skipped, or that it is unverified.
+
+    Raises:
+      CheckpointMismatchError: ``config`` (from ``config.json``) no longer builds the saved state; the
+        message names the arrays that differ and the fields changed since the checkpoint was written.
+      CheckpointDamagedError: every checkpoint is damaged.
+    """
+    try:
+        restored = ckpt.restore_latest(state)
+    except CheckpointMismatchError as e:
+        saved = _jsonable(ckpt.read_record(e.step).get("config") or {})
+        changed = _changed_fields(saved, _jsonable(config)) if saved else []
+        hint = f" (config.json changed since: {'; '.join(changed[:3])})" if changed else ""
+        message = f"--resume {run_dir}: config.json does not match checkpoint {e.step}: {e.listed()}{hint}"
+        raise CheckpointMismatchError(e.step, e.differences, message) from None
+    if restored is not None and restored.note and is_main_process():
+        print(restored.note, file=sys.stderr, flush=True)
+    return restored
+
+
+def _changed_fields(saved: dict[str, Any], now: dict[str, Any], prefix: str = "") -> list[str]:
+    """``"ppo.num_envs 16 then, 32 now"`` for each field that differs between two configs (nested dicts),
+    leaving out the options a resumed run takes from its command line."""
+    out = []
+    for key in sorted(set(saved) | set(now)):
+        a, b = saved.get(key), now.get(key)
+        if key in ("resume", *COMMAND_LINE_FIELDS):
+            continue
+        if isinstance(a, dict) and isinstance(b, dict):
+            out += _changed_fields(a, b, f"{prefix}{key}.")
+        elif a != b:
+            out.append(f"{prefix}{key} {a} then, {b} now")
+    return out
+
+
+def _run_locked(spec: RunSpec, run_dir: str) -> dict[str, Any]:
+    """:func:`run` in ``run_dir`` (made or given), whose lock this process holds."""
     trainer = spec.trainer
     main = is_main_process()
     resuming = spec.run_dir is not None
-    run_dir = spec.run_dir if resuming else make_run_dir(spec.out, spec.algo, spec.env_name)
     if not resuming and main:
         _write_json(os.path.join(run_dir, "config.json"), spec.config)
     _say(f"run directory: {run_dir}")
@@ -498,11 +582,11 @@ def run(spec: RunSpec) -> dict[str, Any]:
     ckpt = Checkpointer(os.path.join(run_dir, "checkpoints"))
     chunk, wall_before = 0, 0.0
     if resuming:
-        step = ckpt.latest_step()
-        if step is None:  # stopped before its first checkpoint: the saved config, from the start
+        restored = restore_run(ckpt, state, run_dir, spec.config)
+        if restored is None:  # stopped before its first checkpoint: the saved config, from the start
             _say(f"--resume {run_dir}: no checkpoint yet; starting this run from the beginning with its saved config")
         else:
-            state, record = ckpt.restore(step, state)
+            state, record = restored.state, restored.record
             chunk, wall_before = int(record["chunk"]), float(record.get("wall_s", 0.0))
             _say(f"resumed at chunk {chunk} ({chunk * trainer.env_steps_per_update} env steps)")
     steps_per = trainer.env_steps_per_update
@@ -527,7 +611,7 @@ def run(spec: RunSpec) -> dict[str, Any]:
     )
 
     def record(c: int, wall: float) -> dict[str, Any]:
-        return {"chunk": c, "env_steps": c * steps_per, "wall_s": wall}
+        return {"chunk": c, "env_steps": c * steps_per, "wall_s": wall, "config": _jsonable(spec.config)}
 
     compile_s, last_saved = None, chunk if resuming else -1
     t_loop = time.perf_counter()
@@ -936,8 +1020,10 @@ def cli_main(cli: AlgorithmCLI, argv: Sequence[str] | None = None) -> int:
     launcher's environment) go to ``parallel.initialize_multihost`` before any JAX computation.
 
     Returns:
-      0 on a finished run (or one stopped on purpose), 1 after a non-finite loss or an
-      unfinished run, 2 on bad input (the message names the field and the valid values),
+      0 on a finished run (or one stopped on purpose), 1 after a non-finite loss, an unfinished run
+      or a checkpoint that could not be written (disk full; the earlier ones are kept), 2 on bad input
+      (the message names the field and the valid values), a run directory another process writes, or a
+      ``--resume`` with no usable checkpoint or a ``config.json`` that no longer fits the checkpoint,
       128 + the signal's number after SIGINT / SIGTERM stopped it (checkpointed; ``--resume`` continues).
     """
     from envs_mjx.config import ConfigError
@@ -967,9 +1053,12 @@ def cli_main(cli: AlgorithmCLI, argv: Sequence[str] | None = None) -> int:
     except RunDirError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    except NonFiniteLossError as e:
+    except (NonFiniteLossError, CheckpointWriteError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 1
+    except CheckpointError as e:  # the run directory is in use, or no checkpoint of it can be resumed
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     if cli.after is not None and is_main_process():
         for one in result.get("seeds", [result]):
             cli.after({**result, **one})
