@@ -203,14 +203,7 @@ class Checkpointer:
         One line per path: another shape or dtype, an array only in the checkpoint or only in ``target``.
         Zero-size leaves of ``target`` are not saved and so not compared.
         """
-        try:
-            tree = self._manager.item_metadata(int(step))["state"]
-            tree = getattr(tree, "tree", tree)
-        except Exception as e:  # the metadata file is unreadable
-            raise CheckpointDamagedError(step, f"metadata unreadable: {_short(e)}") from None
-        if tree is None:
-            raise CheckpointDamagedError(step, "no metadata of the state")
-        saved = {_names(p): m for p, m in jax.tree_util.tree_flatten_with_path(tree)[0] if m is not None}
+        saved = {_names(p): m for p, m in jax.tree_util.tree_flatten_with_path(self._saved_metadata(step))[0]}
         now = {_names(p): x for p, x in jax.tree_util.tree_flatten_with_path(target)[0]}
         out = []
         for path, x in now.items():
@@ -228,11 +221,23 @@ class Checkpointer:
                 if p not in now]  # fmt: skip
         return out
 
+    def _saved_metadata(self, step: int) -> Any:
+        """The saved state's tree of orbax ``ArrayMetadata`` (``shape``, ``dtype``), None for zero-size leaves."""
+        try:
+            tree = self._manager.item_metadata(int(step))["state"]
+            tree = getattr(tree, "tree", tree)
+        except Exception as e:  # the metadata file is unreadable
+            raise CheckpointDamagedError(step, f"metadata unreadable: {_short(e)}") from None
+        if tree is None:
+            raise CheckpointDamagedError(step, "no metadata of the state")
+        return tree
+
     def restore(self, step: int, target: Any = None) -> tuple[Any, dict[str, Any]]:
         """Restore ``step`` into the structure, shapes and shardings of ``target`` (a state).
 
-        Without ``target`` the state comes back as saved: nested dicts of arrays.  The files are
-        checked against their checksums first (:meth:`verify`), then the arrays against ``target``.
+        Without ``target`` the state comes back as saved, nested dicts of arrays, on this process's
+        first device (wherever it was saved).  The files are checked against their checksums first
+        (:meth:`verify`), then the arrays against ``target``.
 
         Raises:
           CheckpointDamagedError: a file is missing, altered or unreadable.
@@ -244,12 +249,15 @@ class Checkpointer:
 
     def _restore(self, step: int, target: Any) -> tuple[Any, dict[str, Any]]:
         """:meth:`restore` without the checksums."""
-        abstract = None
         if target is not None:
             differences = self.differences(step, target)
             if differences:
                 raise CheckpointMismatchError(step, differences)
             abstract = jax.tree.map(lambda x: ocp.utils.to_shape_dtype_struct(x) if np.size(x) else None, target)
+        else:  # onto this process's first device: the saved shardings may name devices this machine lacks
+            device = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
+            abstract = jax.tree.map(lambda m: jax.ShapeDtypeStruct(m.shape, m.dtype, sharding=device),
+                                    self._saved_metadata(step))  # fmt: skip
         args = ocp.args.Composite(state=ocp.args.StandardRestore(abstract), record=ocp.args.JsonRestore())
         try:
             with _held_error_logs():

@@ -8,6 +8,7 @@ import logging
 import os
 import subprocess
 import sys
+import tarfile
 
 import jax
 import jax.numpy as jnp
@@ -273,3 +274,33 @@ def test_prioritized_replay_state_has_one_layout_on_every_backend(tmp_path):
         "tree.prefix.0 (16,) float32 is saved but not in the state now",
         "tree.prefix.1 (256,) float32 is saved but not in the state now",
     ]
+
+
+GPU_CHECKPOINT = os.path.join(os.path.dirname(__file__), "data", "per_checkpoint_gpu.tar.gz")
+"""Checkpoints 1-3 of prioritised replays (capacity 1000, batch 32, trees ``sum``, ``block`` and ``auto``) written
+on an H200 (jax 0.11.2, orbax 0.12.4): each holds 200 items ``obs = arange(600).reshape(200, 3)``,
+``reward = arange(200)``, after three sample / ``update_priorities`` steps (one on the CPU, two on the GPU, the
+block tree's with its Pallas kernels), so β = 0.4 + 3 · 0.001."""
+
+
+def test_a_checkpoint_written_on_a_gpu_restores_on_the_cpu(tmp_path):
+    with tarfile.open(GPU_CHECKPOINT) as tar:
+        tar.extractall(tmp_path, **({"filter": "data"} if hasattr(tarfile, "data_filter") else {}))
+    ckpt = Checkpointer(str(tmp_path / "gpu_ckpt"))
+    item = {"obs": jnp.zeros(3), "reward": jnp.zeros(())}
+    for step, tree in ((1, "sum"), (2, "block"), (3, "auto")):
+        assert ckpt.verify(step)
+        per = make_prioritized_replay(1000, 32, tree=tree)
+        state, record = ckpt.restore(step, per.init(item))
+        assert record == {"tree": tree, "platform": "gpu"}
+        assert int(state.size) == 200 and int(state.insert_pos) == 200
+        np.testing.assert_array_equal(state.data["obs"][:200], np.arange(600.0).reshape(200, 3))
+        np.testing.assert_array_equal(state.data["reward"][:200], np.arange(200.0))
+        np.testing.assert_allclose(float(state.beta), 0.403, rtol=1e-6)
+        leaves = np.asarray(state.tree.leaf_values)
+        assert (leaves[:200] > 0).all() and (leaves[200:] == 0).all()
+        sample = jax.jit(per.sample)(jax.random.PRNGKey(0), state)  # and it samples here
+        assert (np.asarray(sample.indices) < 200).all()
+        raw, _ = ckpt.restore(step)  # without a target: onto this machine's device, not the saved cuda:0
+        assert raw["size"].devices() == {jax.devices()[0]}
+        np.testing.assert_array_equal(raw["tree"]["leaf_values"], leaves)
