@@ -453,7 +453,9 @@ def _write_checksums(folder: str) -> None:
 
 
 def _folder_size(folder: str) -> int:
-    return sum(os.path.getsize(os.path.join(r, n)) for r, _, names in os.walk(folder) for n in names)
+    """Bytes the files under ``folder`` take on disk (allocated blocks: a checkpoint has many small files)."""
+    stats = [os.stat(os.path.join(r, n)) for r, _, names in os.walk(folder) for n in names]
+    return sum(max(s.st_size, getattr(s, "st_blocks", 0) * 512) for s in stats)
 
 
 def _megabytes(n: int) -> str:
