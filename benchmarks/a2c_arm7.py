@@ -28,6 +28,7 @@ from typing import Any
 import jax
 
 from benchmarks import provenance
+from benchmarks.arguments import nonnegative
 from jaxrl_robot.logging import read_csv
 from train import a2c as a2c_cli
 
@@ -164,7 +165,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--preset", default="cpu", help="thesis, cpu or fast")
     p.add_argument("--rows", nargs="+", default=["a3c:ordinary", "a3c:path", "a2c:ordinary", "a2c:path"])
-    p.add_argument("--seeds", nargs="+", type=int, default=[0])
+    p.add_argument("--seeds", nargs="+", type=nonnegative, default=[0])
     p.add_argument("--runs", default="runs/bench-a2c", help="parent folder of the run directories")
     p.add_argument("--out", default=RESULTS)
     p.add_argument("--note", default="", help="free text recorded with the results (e.g. machine load)")

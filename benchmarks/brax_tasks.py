@@ -69,6 +69,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from benchmarks import provenance
+from benchmarks.arguments import at_least, nonnegative, positive
 from benchmarks.tracking_report import pairs
 from benchmarks.train_throughput import RESULTS, device_label
 from envs_mjx.base import ActionRepeatWrapper
@@ -422,21 +423,22 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                    "(brax's SAC beside)")  # fmt: skip
     p.add_argument("--tasks", nargs="+", default=None, metavar="TASK",
                    help=f"PPO: {', '.join(BRAX_PPO)} (default: all); TD3 / DDPG: {', '.join(BRAX_SAC)} (default: all)")
-    p.add_argument("--seeds", type=int, default=3)
-    p.add_argument("--brax-seeds", type=int, default=0, help="brax's seeds (0: --seeds)")
-    p.add_argument("--brax-first-seed", type=int, default=0,
+    p.add_argument("--seeds", type=positive, default=3)
+    p.add_argument("--brax-seeds", type=nonnegative, default=0, help="brax's seeds (0: --seeds)")
+    p.add_argument("--brax-first-seed", type=nonnegative, default=0,
                    help="brax's first seed (its seeds split over invocations, e.g. two GPUs, then --merge)")
-    p.add_argument("--steps", type=int, default=0, help="env steps per seed (0: brax's budget of the task)")
+    p.add_argument("--steps", type=nonnegative, default=0, help="env steps per seed (0: brax's budget of the task)")
     p.add_argument("--backend", default="mjx", help="brax physics backend (mjx, generalized, positional, spring)")
-    p.add_argument("--eval-episodes", type=int, default=128)
-    p.add_argument("--evals", type=int, default=10,
+    p.add_argument("--eval-episodes", type=positive, default=128)
+    p.add_argument("--evals", type=at_least(2), default=10,
                    help="evaluations of each side along training, the first before it (brax's num_evals; at "
                    "least 2); fewer cost less where they take much of a short run")  # fmt: skip
     p.add_argument("--eval-mode", default=None, choices=EVAL_MODES,
                    help="final evaluation of both sides: sampled actions (PPO's default, brax's) or the mean "
                    "action (TD3's and DDPG's default: they act deterministically); ours is also evaluated "
                    "with its mean action either way")  # fmt: skip
-    p.add_argument("--num-envs", type=int, default=0, help="envs of both trainers, batch scaled alike (0: the row's)")
+    p.add_argument("--num-envs", type=nonnegative, default=0,
+                   help="envs of both trainers, batch scaled alike (0: the row's)")
     p.add_argument("--row", nargs="*", default=[], metavar="KEY=VALUE",
                    help="settings of both trainers in brax's terms over the task's row (e.g. min_replay_size=1024)")
     p.add_argument("--ours", nargs="*", default=[], metavar="KEY=VALUE",
@@ -451,7 +453,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                    help="our seeds: one program called per seed, or one vmapped program (an accelerator's only: "
                    "XLA's CPU compiler stops with a floating point exception on the vmapped MJX program, "
                    "jax 0.10.2)")  # fmt: skip
-    p.add_argument("--devices", type=int, default=1,
+    p.add_argument("--devices", type=nonnegative, default=1,
                    help="devices our lanes are spread over (0: all; more than 1 with --seed-map loop)")
     p.add_argument("--out", default=RESULTS)
     p.add_argument("--label", default="", help="appended to the results files' name (e.g. 5M)")

@@ -44,6 +44,7 @@ import jax
 
 import envs_mjx
 from benchmarks import provenance
+from benchmarks.arguments import positive
 from benchmarks.timing import compile_and_time
 from benchmarks.tracking_report import pairs
 from benchmarks.train_throughput import RESULTS, device_label
@@ -187,14 +188,14 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--env", default="unicycle", help="an envs_mjx name (unicycle, scara, arm7, ...)")
     p.add_argument("--env-config", nargs="*", default=[], help="env settings KEY=VALUE")
     p.add_argument("--kinds", nargs="+", default=["distributed", "single"], choices=["distributed", "single"])
-    p.add_argument("--lanes", type=int, nargs="+", default=[4096, 16384, 65536] if on_gpu else [64, 256])
-    p.add_argument("--unroll", type=int, default=4, help="steps per lane per iteration")
-    p.add_argument("--updates", type=int, nargs="+", default=[32] if on_gpu else [8],
+    p.add_argument("--lanes", type=positive, nargs="+", default=[4096, 16384, 65536] if on_gpu else [64, 256])
+    p.add_argument("--unroll", type=positive, default=4, help="steps per lane per iteration")
+    p.add_argument("--updates", type=positive, nargs="+", default=[32] if on_gpu else [8],
                    help="learner updates per iteration")  # fmt: skip
-    p.add_argument("--sync-workers", type=int, default=4)
-    p.add_argument("--batch", type=int, default=32, help="transitions per synchronous worker and update")
-    p.add_argument("--iterations", type=int, default=10 if on_gpu else 2, help="iterations per timed call")
-    p.add_argument("--repeats", type=int, default=5 if on_gpu else 3)
+    p.add_argument("--sync-workers", type=positive, default=4)
+    p.add_argument("--batch", type=positive, default=32, help="transitions per synchronous worker and update")
+    p.add_argument("--iterations", type=positive, default=10 if on_gpu else 2, help="iterations per timed call")
+    p.add_argument("--repeats", type=positive, default=5 if on_gpu else 3)
     p.add_argument("--set", nargs="*", default=[], help="further DDPG fields FIELD=VALUE")
     provenance.add_args(p)
     p.add_argument("--baseline", help="the JSON of a run on fewer devices: adds the scaling table")

@@ -27,6 +27,7 @@ import jax
 import numpy as np
 
 from benchmarks import provenance
+from benchmarks.arguments import positive
 from benchmarks.train_throughput import RESULTS, device_label
 from jaxrl_robot import parallel
 
@@ -85,7 +86,7 @@ def run_case(case: str, chunks: int, extra: list[str], preset: str = "fast") -> 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--cases", nargs="+", default=CASES)
-    p.add_argument("--chunks", type=int, default=2)
+    p.add_argument("--chunks", type=positive, default=2)
     p.add_argument("--extra", default="", help="further flags for every case's command line, in one quoted string")
     p.add_argument("--preset", default="fast", help="every case's --preset (brax: a brax task's)")
     p.add_argument("--out", default=RESULTS)

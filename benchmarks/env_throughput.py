@@ -44,6 +44,7 @@ from mujoco import mjx  # noqa: E402
 
 import envs_mjx  # noqa: E402
 from benchmarks import provenance  # noqa: E402
+from benchmarks.arguments import positive  # noqa: E402
 from envs_mjx import wrap_for_training  # noqa: E402
 
 warnings.filterwarnings("ignore", message="arm7 pd mode steps MJX")  # options are set per computation here
@@ -232,12 +233,13 @@ def markdown(meta: dict[str, Any], rows: list[dict[str, Any]], mlp: list[dict[st
 def main(argv: list[str] | None = None) -> None:
     on_cpu = jax.default_backend() == "cpu"
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--batches", type=int, nargs="+", default=[64, 256, 1024] if on_cpu else [1024, 8192, 65536])
+    parser.add_argument("--batches", type=positive, nargs="+",
+                        default=[64, 256, 1024] if on_cpu else [1024, 8192, 65536])  # fmt: skip
     parser.add_argument("--cases", nargs="+", default=[c.label for c in CASES], help="labels from CASES")
-    parser.add_argument("--steps", type=int, default=10 if on_cpu else 20, help="control steps per timed call")
-    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--steps", type=positive, default=10 if on_cpu else 20, help="control steps per timed call")
+    parser.add_argument("--repeats", type=positive, default=5)
     parser.add_argument(
-        "--default-xla-batches", type=int, nargs="*", default=[64] if on_cpu else [],
+        "--default-xla-batches", type=positive, nargs="*", default=[64] if on_cpu else [],
         help="batches also measured with XLA's default pipeline (CPU before/after)",
     )  # fmt: skip
     parser.add_argument("--out", default=None, help="JSON path (markdown beside it); default benchmarks/results/")

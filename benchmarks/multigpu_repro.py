@@ -26,6 +26,7 @@ import sys
 import time
 
 from benchmarks import provenance
+from benchmarks.arguments import positive
 
 FLAGS = {
     "autotune0": "--xla_gpu_autotune_level=0",
@@ -87,9 +88,9 @@ def child(variant: str, lanes: int, steps: int) -> None:
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--variants", default=",".join(DEFAULT))
-    p.add_argument("--lanes", type=int, default=256)
-    p.add_argument("--steps", type=int, default=4)
-    p.add_argument("--timeout", type=int, default=300)
+    p.add_argument("--lanes", type=positive, default=256)
+    p.add_argument("--steps", type=positive, default=4)
+    p.add_argument("--timeout", type=positive, default=300)
     p.add_argument("--out", default="")
     p.add_argument("--child", default="", help=argparse.SUPPRESS)
     provenance.add_args(p)

@@ -23,6 +23,7 @@ from typing import Any
 import jax
 
 from benchmarks import provenance
+from benchmarks.arguments import positive
 from benchmarks.timing import compile_and_time
 from benchmarks.train_throughput import RESULTS, device_label
 
@@ -72,7 +73,7 @@ def to_markdown(result: dict[str, Any]) -> str:
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--trees", nargs="+", default=["sum", "block"], choices=["sum", "block"])
-    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--repeats", type=positive, default=3)
     p.add_argument("--out", default=RESULTS)
     p.add_argument("ddpg", nargs="*", help="train.ddpg arguments after --, without --per (default: Table 3.1's "
                    "PER row on arm7_precise)")  # fmt: skip

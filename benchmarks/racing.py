@@ -25,6 +25,7 @@ import numpy as np
 
 import envs_mjx
 from benchmarks import provenance
+from benchmarks.arguments import nonnegative, positive
 from benchmarks.tracking_report import pairs, train_seeds
 from envs_mjx import racetrack
 from envs_mjx.racecar import CONTACTS, LAP_OUTCOMES, expert_action, lap_summary, make_lap_test
@@ -144,10 +145,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
     p.add_argument("--preset", default="fast", choices=("thesis", "cpu", "fast"))
-    p.add_argument("--seeds", type=int, default=3)
-    p.add_argument("--seed0", type=int, default=0, help="the seeds' keys split from PRNGKey(seed0)")
-    p.add_argument("--laps", type=int, default=20, help="test laps per road and seed")
-    p.add_argument("--test-key", type=int, default=1)
+    p.add_argument("--seeds", type=positive, default=3)
+    p.add_argument("--seed0", type=nonnegative, default=0, help="the seeds' keys split from PRNGKey(seed0)")
+    p.add_argument("--laps", type=positive, default=20, help="test laps per road and seed")
+    p.add_argument("--test-key", type=nonnegative, default=1)
     p.add_argument("--set", nargs="*", default=[], metavar="FIELD=VALUE", help="DDPGConfig overrides")
     p.add_argument("--env-config", nargs="*", default=[], metavar="KEY=VALUE", help="racecar overrides")
     p.add_argument("--sequential", action="store_true", help="one program per seed instead of vmapped seeds")

@@ -48,6 +48,7 @@ import jax.numpy as jnp
 
 import envs_mjx  # noqa: F401  (configures XLA:CPU for MJX before the first computation)
 from benchmarks import provenance
+from benchmarks.arguments import at_least, nonnegative, positive
 from benchmarks.timing import compile_and_time
 from jaxrl_robot.replay import Transition, make_prioritized_replay, make_uniform_replay
 
@@ -278,16 +279,17 @@ def to_markdown(result: dict[str, Any]) -> str:
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--capacity", type=int, default=1_000_000)
-    p.add_argument("--fill", type=int, default=1_000_000)
-    p.add_argument("--batches", type=int, nargs="+", default=[128, 256])
-    p.add_argument("--inner", type=int, default=100)
-    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--capacity", type=positive, default=1_000_000)
+    p.add_argument("--fill", type=nonnegative, default=1_000_000)
+    p.add_argument("--batches", type=positive, nargs="+", default=[128, 256])
+    p.add_argument("--inner", type=positive, default=100)
+    p.add_argument("--repeats", type=positive, default=5)
     p.add_argument("--replay", action=argparse.BooleanOptionalAction, default=True, help="the buffer operations")
     p.add_argument("--ddpg", action=argparse.BooleanOptionalAction, default=True)
-    p.add_argument("--ddpg-lanes", type=int, nargs="+", default=None)
+    p.add_argument("--ddpg-lanes", type=positive, nargs="+", default=None)
     p.add_argument("--mode", default=None, help="arm7 physics of the DDPG cycle (default: pd on GPU, else kinematic)")
-    p.add_argument("--branchings", type=int, nargs="+", default=[2, 8, 16, 32], help="sum-tree branching factors")
+    p.add_argument("--branchings", type=at_least(2), nargs="+", default=[2, 8, 16, 32],
+                   help="sum-tree branching factors")  # fmt: skip
     p.add_argument("--blocks", nargs="*", default=["block"],
                    help="block-tree variants: 'block' (default backend), 'block-xla', 'block-pallas'")  # fmt: skip
     p.add_argument("--out", default=RESULTS)

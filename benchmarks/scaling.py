@@ -36,6 +36,7 @@ import jax
 
 import envs_mjx
 from benchmarks import provenance
+from benchmarks.arguments import nonnegative, positive
 from benchmarks.train_throughput import (
     RESULTS,
     SEEDS,
@@ -134,16 +135,17 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     on_cpu = jax.default_backend() == "cpu"
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--envs", nargs="+", default=["arm7", "unicycle"], choices=sorted(ENV_CONFIGS))
-    p.add_argument("--one", type=int, nargs="*", default=[64, 128] if on_cpu else [8192, 16384, 32768, 65536, 131072])
-    p.add_argument("--weak", type=int, nargs="*", default=[64] if on_cpu else [16384, 32768, 65536])
-    p.add_argument("--strong", type=int, nargs="*", default=[128] if on_cpu else [65536])
-    p.add_argument("--brax", type=int, nargs="*", default=[] if on_cpu else [16384, 32768, 65536])
-    p.add_argument("--unroll", type=int, default=16)
-    p.add_argument("--updates", type=int, default=4)
-    p.add_argument("--chunk-iters", type=int, default=4)
-    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--one", type=positive, nargs="*",
+                   default=[64, 128] if on_cpu else [8192, 16384, 32768, 65536, 131072])  # fmt: skip
+    p.add_argument("--weak", type=positive, nargs="*", default=[64] if on_cpu else [16384, 32768, 65536])
+    p.add_argument("--strong", type=positive, nargs="*", default=[128] if on_cpu else [65536])
+    p.add_argument("--brax", type=positive, nargs="*", default=[] if on_cpu else [16384, 32768, 65536])
+    p.add_argument("--unroll", type=positive, default=16)
+    p.add_argument("--updates", type=positive, default=4)
+    p.add_argument("--chunk-iters", type=positive, default=4)
+    p.add_argument("--repeats", type=positive, default=3)
     p.add_argument("--reset-refresh", type=float, default=0.125)
-    p.add_argument("--lane-group", type=int, default=0)
+    p.add_argument("--lane-group", type=nonnegative, default=0)
     p.add_argument("--out", default=RESULTS)
     p.add_argument("--brax-only", default="", help=argparse.SUPPRESS)
     provenance.add_args(p)

@@ -68,6 +68,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks import provenance
+from benchmarks.arguments import nonnegative, positive
 from benchmarks.tracking_report import GOAL, THESIS
 from benchmarks.train_throughput import RESULTS, device_label
 from jaxrl_robot import plots
@@ -586,7 +587,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--tables", nargs="+", default=None, choices=TABLES,
                    help="default: every table; rows run in this order (the report keeps the thesis's)")
     p.add_argument("--rows", nargs="+", default=None, help="only these rows (table/name or name; see --list)")
-    p.add_argument("--seeds", type=int, default=3)
+    p.add_argument("--seeds", type=positive, default=3)
     p.add_argument("--preset", default="auto", choices=["auto", "thesis", "cpu", "fast"])
     p.add_argument("--variant", default="standard", choices=VARIANTS,
                    help="precise: the arm rows on arm7_precise (1 cm goal; met at >= 95 %% within 2 cm and >= 90 %% "
@@ -595,16 +596,16 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--out", default=RESULTS, help="where the report goes")
     p.add_argument("--smoke", action="store_true", help="tiny budgets: checks the plumbing, not the numbers")
     p.add_argument("--quiet", action="store_true", help="hide the runs' own output")
-    p.add_argument("--jobs", type=int, default=1,
+    p.add_argument("--jobs", type=positive, default=1,
                    help="seeds of a row run at once, each in its own process (default 1: one after another, "
                    "in this process)")  # fmt: skip
     p.add_argument("--together", action="store_true",
                    help="a row's seeds as one run (--seeds N of its command line: vmapped on a GPU, one compiled "
                    "program looped over the seeds on the CPU)")  # fmt: skip
-    p.add_argument("--parallel", type=int, default=1,
+    p.add_argument("--parallel", type=positive, default=1,
                    help="rows run at once, each its seeds as one run (as --together) in a process of its own "
                    "(default 1: one row after another)")  # fmt: skip
-    p.add_argument("--gpus", type=int, nargs="+", default=None,
+    p.add_argument("--gpus", type=nonnegative, nargs="+", default=None,
                    help="with --parallel: GPU indices the row processes are spread over, one GPU each (default: "
                    "every process sees every visible device)")  # fmt: skip
     p.add_argument("--list", action="store_true", help="print the rows and their commands, run nothing")

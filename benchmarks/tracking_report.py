@@ -20,6 +20,7 @@ import jax
 import numpy as np
 
 from benchmarks import provenance
+from benchmarks.arguments import nonnegative, positive
 from benchmarks.train_throughput import RESULTS, device_label
 from train.common import parse_value
 
@@ -60,10 +61,10 @@ def pairs(items: Sequence[str]) -> dict[str, Any]:
 
 def add_common_args(p: argparse.ArgumentParser) -> None:
     """The options every tracking benchmark has: seeds, preset, budget, overrides, label, commit, out."""
-    p.add_argument("--seeds", type=int, default=3)
-    p.add_argument("--seed", type=int, default=0, help="the seeds' keys are split from this one")
+    p.add_argument("--seeds", type=positive, default=3)
+    p.add_argument("--seed", type=nonnegative, default=0, help="the seeds' keys are split from this one")
     p.add_argument("--preset", default="auto")
-    p.add_argument("--total-steps", type=int, default=0, help="override the preset's budget (0: keep it)")
+    p.add_argument("--total-steps", type=nonnegative, default=0, help="override the preset's budget (0: keep it)")
     p.add_argument("--set", nargs="*", default=[], help="trainer config fields FIELD=VALUE")
     p.add_argument("--env-config", nargs="*", default=[], help="env settings KEY=VALUE")
     p.add_argument("--label", default="", help="names the variant (results file suffix)")

@@ -33,6 +33,7 @@ import numpy as np
 
 import envs_mjx
 from benchmarks import provenance
+from benchmarks.arguments import positive
 from benchmarks.peers.brax_ppo import run_brax_ppo
 from benchmarks.timing import compile_and_time
 from jaxrl_robot.agents.ppo import PPOConfig, make_trainer
@@ -125,12 +126,13 @@ def to_markdown(result: dict[str, Any]) -> str:
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     on_cpu = jax.default_backend() == "cpu"
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--lanes", type=int, nargs="+", default=[32, 128, 512] if on_cpu else [1024, 4096, 16384, 65536])
-    p.add_argument("--brax-lanes", type=int, nargs="*", default=None, help="lane counts for brax (default: ours'")
-    p.add_argument("--unroll", type=int, default=16)
-    p.add_argument("--updates", type=int, default=4)
-    p.add_argument("--chunk-iters", type=int, default=4)
-    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--lanes", type=positive, nargs="+",
+                   default=[32, 128, 512] if on_cpu else [1024, 4096, 16384, 65536])  # fmt: skip
+    p.add_argument("--brax-lanes", type=positive, nargs="*", default=None, help="lane counts for brax (default: ours'")
+    p.add_argument("--unroll", type=positive, default=16)
+    p.add_argument("--updates", type=positive, default=4)
+    p.add_argument("--chunk-iters", type=positive, default=4)
+    p.add_argument("--repeats", type=positive, default=3)
     p.add_argument("--mode", default=None, help="arm7 physics mode (default: kinematic on CPU, pd otherwise)")
     p.add_argument(
         "--reset-refresh",

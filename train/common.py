@@ -64,13 +64,14 @@ import functools
 import json
 import math
 import os
+import re
 import signal
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
-from typing import Any
+from typing import Any, ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -104,10 +105,13 @@ from train.presets import BRAX_PPO_TUNED, BRAX_SAC_TUNED, brax_sac_task, brax_ta
 __all__ = [
     "AlgorithmCLI",
     "NonFiniteLossError",
+    "PeerLostError",
     "RunDirError",
     "RunOptions",
     "RunSettings",
     "RunSpec",
+    "check_command_line",
+    "check_options",
     "cli_main",
     "env_overrides",
     "episode_length",
@@ -139,15 +143,24 @@ class NonFiniteLossError(RuntimeError):
     """A loss became NaN or inf; the message names the metric, the env step and the last good checkpoint."""
 
 
+class PeerLostError(RuntimeError):
+    """Another process of a run over several processes stopped responding; the message names it and
+    the run directory to resume (:func:`jaxrl_robot.parallel.lost_peer`)."""
+
+
+MAX_SEED = 2**32 - 1
+"""The largest ``--seed`` (``+ --seeds - 1``): JAX's keys take 32-bit seeds (larger ones alias smaller ones)."""
+
+
 @dataclasses.dataclass
 class RunSettings:
     """How a run is driven, saved and evaluated: the part of :class:`RunOptions` that
     :func:`run` reads (through :class:`RunSpec`)."""
 
     seed: int = 0
-    """Random seed of the run (training); evaluation uses a separate stream derived from it."""
+    """Random seed of the run (training), 0 to 2**32 - 1; evaluation uses a separate stream derived from it."""
     seeds: int = 1
-    """Train this many seeds (seed, seed + 1, …) in one run on one device; each writes its metrics,
+    """Train this many seeds (seed, seed + 1, …; at least 1) in one run on one device; each writes its metrics,
     figures and ``eval.json`` to ``<run dir>/seed<k>/`` as the run of ``--seed k`` would, with the
     ``config.json`` of that run. 1: one run, written to the run directory itself."""
     seed_map: str = "auto"
@@ -156,15 +169,23 @@ class RunSettings:
     out: str = "runs"
     """Parent folder of the run directory runs/<algo>-<env>-<time>/."""
     checkpoint_every: int = 10
-    """Chunks between checkpoints (the last chunk is always saved)."""
+    """Chunks between checkpoints, at least 1 (the last chunk is always saved)."""
     eval_episodes: int = 100
-    """Test episodes of the final evaluation (reaching envs)."""
+    """Test episodes of the final evaluation (reaching envs; racecar: laps per road), at least 1. A run
+    that finishes is always evaluated; one stopped early by --stop-after-steps is not."""
     precision: bool = True
     """Reaching envs with a goal threshold (arm7): also report success at 5, 2 and 1 cm."""
     stop_after_steps: int = 0
     """Stop early, resumably, once this many env steps are done (0: run to the end)."""
     progress: bool | None = None
     """Show a progress bar (default: only on a terminal and not under CI)."""
+
+    ranges: ClassVar[dict[str, tuple[int, int | None]]] = {
+        "seed": (0, MAX_SEED), "seeds": (1, None), "checkpoint_every": (1, None), "eval_episodes": (1, None),
+        "stop_after_steps": (0, None),
+    }  # fmt: skip
+    """The allowed ``[low, high]`` (None: no upper bound) of every count among the options, checked by
+    :func:`check_options` before anything is built; a subclass extends it with its own counts."""
 
 
 def settings_of(options: Any) -> dict[str, Any]:
@@ -498,11 +519,20 @@ def run(spec: RunSpec) -> dict[str, Any]:
       CheckpointMismatchError, CheckpointDamagedError: ``--resume`` found no checkpoint it can use
         (:func:`restore_run`).
       CheckpointWriteError: a checkpoint could not be written (disk full); earlier ones are kept.
+      PeerLostError: another process of a run over several stopped responding.
+      ValueError: a count of ``spec`` is out of range (:func:`check_options`).
     """
+    check_options(spec)
     run_dir = spec.run_dir if spec.run_dir is not None else make_run_dir(spec.out, spec.algo, spec.env_name)
+    parallel.set_peer_loss_note(f"the run can be resumed with --resume {run_dir}")
     lock = lock_run_dir(run_dir)
     try:
         return _run_locked(spec, run_dir)
+    except Exception as e:
+        lost = parallel.lost_peer(e)
+        if lost is None:
+            raise
+        raise PeerLostError(f"{lost}; the run can be resumed with --resume {run_dir}") from e
     finally:
         if lock is not None:
             lock.release()
@@ -644,7 +674,7 @@ def _run_locked(spec: RunSpec, run_dir: str) -> dict[str, Any]:
             bar.update(chunk * steps_per, _progress_info(per_seed[0], sps))
             if interrupt["signal"] and chunk < stop_chunk:
                 stop_chunk = chunk  # saved just below, then the loop ends
-            if chunk % max(spec.checkpoint_every, 1) == 0 or chunk == stop_chunk:
+            if chunk % spec.checkpoint_every == 0 or chunk == stop_chunk:
                 ckpt.save(chunk, state, record(chunk, wall_before + time.perf_counter() - t0))
                 last_saved = chunk
     jax.block_until_ready(state)
@@ -779,9 +809,10 @@ class RunOptions(RunSettings):
     """Continue the run in this directory (its config.json is used; other flags are ignored).
     --stop-after-steps, --progress and the process options apply as given."""
     chunks: int = 50
-    """Reporting chunks per run: metrics, progress and checkpoints happen between chunks."""
+    """Reporting chunks per run, at least 1: metrics, progress and checkpoints happen between chunks."""
     devices: int = 0
-    """Devices to spread the lanes over (0: all devices, of every process in a run over several)."""
+    """Devices to spread the lanes over, 0 to the device count (0: all devices, of every process in a run
+    over several)."""
     coordinator: str | None = None
     """HOST:PORT of process 0 in a run over several processes (jax.distributed).
     None: $JAX_COORDINATOR_ADDRESS, else a detected SLURM / Open MPI / Kubernetes launch, else one process."""
@@ -789,6 +820,11 @@ class RunOptions(RunSettings):
     """Processes of a run over several processes (None: from the launcher's environment)."""
     process_id: int | None = None
     """This process's index, 0 to num_processes - 1 (None: from the launcher's environment)."""
+
+    ranges: ClassVar[dict[str, tuple[int, int | None]]] = {
+        **RunSettings.ranges, "chunks": (1, None), "devices": (0, None), "num_processes": (1, None),
+        "process_id": (0, None),
+    }  # fmt: skip
 
 
 PROCESS_FIELDS = ("coordinator", "num_processes", "process_id")
@@ -844,12 +880,16 @@ def episode_length(env: Env, cfg_len: int = 0) -> int:
 
 
 def iterations_per_chunk(total_iterations: int, chunks: int) -> int:
-    """Iterations per reporting chunk so that ``chunks`` chunks cover ``total_iterations`` (at least 1)."""
-    return max(1, -(-total_iterations // max(chunks, 1)))
+    """Iterations per reporting chunk so that ``chunks`` (>= 1) chunks cover ``total_iterations`` (at least 1)."""
+    if chunks < 1:
+        raise ValueError(f"--chunks {chunks} is out of range; allowed >= 1")
+    return max(1, -(-total_iterations // chunks))
 
 
 def lane_mesh(devices: int) -> Mesh:
     """The lane mesh of ``--devices`` (0: every device); a run over several processes uses all of them."""
+    if not 0 <= devices <= jax.device_count():
+        raise ValueError(f"--devices {devices} is out of range; allowed [0, {jax.device_count()}] (0: every device)")
     if jax.process_count() > 1 and devices not in (0, jax.device_count()):
         raise ValueError(
             f"--devices {devices}: a run over {jax.process_count()} processes spreads its lanes over all "
@@ -888,6 +928,52 @@ def preparse(argv: Sequence[str], extra: Sequence[str] = ()) -> argparse.Namespa
     for name in ("num_processes", "process_id"):
         setattr(known, name, _none_or(getattr(known, name), int))
     return known
+
+
+def flag(name: str) -> str:
+    """The command-line flag of an option or a config field: ``eval_episodes`` -> ``--eval-episodes``."""
+    return "--" + name.replace("_", "-")
+
+
+def check_options(options: Any, ranges: Mapping[str, tuple[int, int | None]] | None = None) -> None:
+    """Check the counts of ``options`` (a :class:`RunOptions`, or any object with some of its attributes;
+    None: not given) against ``ranges`` (default ``options.ranges``, :attr:`RunSettings.ranges`), and that
+    ``--process-id`` is below ``--num-processes`` and ``--seed + --seeds - 1`` at most :data:`MAX_SEED`.
+
+    Raises:
+      ValueError: the first value out of range, naming its flag and the allowed range
+        (``--eval-episodes -5 is out of range; allowed >= 1``).
+    """
+    ranges = type(options).ranges if ranges is None else ranges
+    for name, (low, high) in ranges.items():
+        value = getattr(options, name, None)
+        if value is not None and (value < low or (high is not None and value > high)):
+            allowed = f">= {low}" if high is None else f"[{low}, {high}]"
+            raise ValueError(f"{flag(name)} {value} is out of range; allowed {allowed}")
+    count, index = getattr(options, "num_processes", None), getattr(options, "process_id", None)
+    if count is not None and index is not None and index >= count:
+        raise ValueError(f"--process-id {index} is out of range; allowed [0, {count - 1}] (--num-processes {count})")
+    seed, seeds = getattr(options, "seed", None), getattr(options, "seeds", None)
+    if seed is not None and seeds is not None and seed + seeds - 1 > MAX_SEED:
+        raise ValueError(f"--seed {seed} with --seeds {seeds} is out of range; allowed seed + seeds - 1 <= {MAX_SEED}")
+
+
+def check_command_line(argv: Sequence[str], ranges: Mapping[str, tuple[int, int | None]]) -> None:
+    """:func:`check_options` on the counts of ``ranges`` as ``argv`` gives them (``--name VALUE`` or
+    ``--name=VALUE``, with ``-`` or ``_``), before anything is built; values that are no integers and
+    flags without a value are left to tyro, which reports them.
+
+    Raises:
+      ValueError: as :func:`check_options`.
+    """
+    pre = argparse.ArgumentParser(add_help=False, allow_abbrev=False, exit_on_error=False)
+    for name in ranges:
+        pre.add_argument(*dict.fromkeys((flag(name), "--" + name)), dest=name, default=None)
+    try:
+        known, _ = pre.parse_known_args(list(argv))
+    except argparse.ArgumentError:
+        return
+    check_options(argparse.Namespace(**{k: _none_or(v, int) for k, v in vars(known).items()}), ranges)
 
 
 def _tuples(x: Any) -> Any:
@@ -942,6 +1028,8 @@ class AlgorithmCLI:
         """Parse the command line: the preset's defaults for ``--env`` (and its env settings) first,
         then every flag; with ``--resume DIR`` the arguments saved in that run (:meth:`args_from_saved`)."""
         argv = sys.argv[1:] if argv is None else list(argv)
+        if not _asks_for_help(argv):
+            check_command_line(argv, self.args_type.ranges)  # before the preset's env is built
         known = preparse(argv, (*self.env_fields, *self.preset_fields))
         if known.resume:
             preset, config = known.preset, self.config_type()
@@ -964,7 +1052,41 @@ class AlgorithmCLI:
         default = self.args(config, env=known.env, preset=preset)
         args = tyro.cli(self.args_type, args=argv, default=default, prog=f"python -m train.{self.name}")
         args = dataclasses.replace(args, preset=resolve_preset(args.preset, args.env, self.name))
-        return self.args_from_saved(args.resume, args) if args.resume else args
+        return self.check(self.args_from_saved(args.resume, args) if args.resume else args)
+
+    def check(self, args: Any) -> Any:
+        """``args``, once its counts (:func:`check_options`) and its hyper-parameters (:meth:`validate`)
+        are found in range.
+
+        Raises:
+          ValueError: as :func:`check_options`, or ``ConfigError`` as :meth:`validate`; for a resumed run
+            the message begins ``--resume DIR: config.json:``.
+        """
+        try:
+            check_options(args)
+        except ValueError as e:
+            raise ValueError(f"--resume {args.resume}: config.json: {e}" if args.resume else str(e)) from None
+        self.validate(args)
+        return args
+
+    def validate(self, args: Any, config: Any = None) -> None:
+        """``config.validate()`` (default: ``args``'s config), before the env is built.
+
+        Raises:
+          ConfigError: the first invalid field, its flag in front (``--clip-eps: clip_eps=2.0 is out of
+            range; allowed (0, 1)``); for a resumed run ``--resume DIR: config.json: clip_eps=2.0 …``.
+        """
+        from envs_mjx.config import ConfigError
+
+        config = getattr(args, self.name) if config is None else config
+        try:
+            config.validate()
+        except ConfigError as e:
+            if args.resume:
+                raise ConfigError(f"--resume {args.resume}: config.json: {e}") from None
+            name = re.match(r"[a-z_][a-z0-9_]*", str(e))
+            fields = {f.name for f in dataclasses.fields(config)}
+            raise ConfigError(f"{flag(name[0])}: {e}" if name and name[0] in fields else str(e)) from None
 
     def args_from_saved(self, run_dir: str, current: Any) -> Any:
         """The arguments saved in ``run_dir/config.json``, resuming that run; the options of
@@ -980,18 +1102,17 @@ class AlgorithmCLI:
         return self.args(self.config_type(**_tuples(saved[self.name])), **options)
 
     def build(self, args: Any) -> tuple[Env, Trainer, dict[str, Any]]:
-        """``(env, trainer, config dict)`` for ``args`` (a fresh run or a resumed one)."""
-        env = make_env(args.env, self.env_settings(args))
-        cfg = getattr(args, self.name)
-        if not cfg.episode_length:
-            cfg = cfg.replace(episode_length=episode_length(env))
-        cfg.validate()
+        """``(env, trainer, config dict)`` for ``args`` (a fresh run or a resumed one), checked (:meth:`check`)
+        before the env is built."""
+        cfg = getattr(self.check(args), self.name)
         mesh = lane_mesh(args.devices)
-        if args.seeds < 1:
-            raise ValueError(f"--seeds {args.seeds} is out of range; allowed >= 1")
         if resolve_seed_map(args.seed_map) == "vmap" and args.seeds > 1 and mesh.devices.size > 1:
             raise ValueError(f"--seeds {args.seeds} vmapped runs on one device; add --devices 1 (the lanes would "
                              f"be spread over {mesh.devices.size}) or --seed-map loop")  # fmt: skip
+        env = make_env(args.env, self.env_settings(args))
+        if not cfg.episode_length:
+            cfg = cfg.replace(episode_length=episode_length(env))
+            self.validate(args, cfg)
         trainer, per_chunk = self.make_trainer(args, env, cfg, mesh)
         options = dataclasses.asdict(args)
         config = {
@@ -1022,15 +1143,21 @@ def cli_main(cli: AlgorithmCLI, argv: Sequence[str] | None = None) -> int:
     Returns:
       0 on a finished run (or one stopped on purpose), 1 after a non-finite loss, an unfinished run
       or a checkpoint that could not be written (disk full; the earlier ones are kept), 2 on bad input
-      (the message names the field and the valid values), a run directory another process writes, or a
-      ``--resume`` with no usable checkpoint or a ``config.json`` that no longer fits the checkpoint,
-      128 + the signal's number after SIGINT / SIGTERM stopped it (checkpointed; ``--resume`` continues).
+      (the message names the field and the valid values; the options' counts are checked before any env
+      is built, the config before the run's env and before anything is compiled), a run directory another
+      process writes, or a ``--resume`` with no usable checkpoint or a ``config.json`` that no longer fits
+      the checkpoint, 128 + the signal's number after SIGINT / SIGTERM stopped it (checkpointed;
+      ``--resume`` continues).
+      In a run over several processes whose peer stopped responding, the process ends at once with 1
+      after one line on stderr (:func:`jaxrl_robot.parallel.exit_at_once`: a normal exit would wait
+      for the lost peer in ``jax.distributed.shutdown`` and then abort).
     """
     from envs_mjx.config import ConfigError
 
     argv = sys.argv[1:] if argv is None else list(argv)
     try:
         if not _asks_for_help(argv):
+            check_command_line(argv, cli.args_type.ranges)
             known = preparse(argv)
             parallel.initialize_multihost(known.coordinator, known.num_processes, known.process_id)
         args = cli.parse(argv)
@@ -1059,6 +1186,13 @@ def cli_main(cli: AlgorithmCLI, argv: Sequence[str] | None = None) -> int:
     except CheckpointError as e:  # the run directory is in use, or no checkpoint of it can be resumed
         print(f"error: {e}", file=sys.stderr)
         return 2
+    except PeerLostError as e:
+        parallel.exit_at_once(1, f"error: {e}")
+    except Exception as e:
+        lost = parallel.lost_peer(e)  # before the run directory was chosen
+        if lost is None:
+            raise
+        parallel.exit_at_once(1, f"error: {lost} as the run began; start it again")
     if cli.after is not None and is_main_process():
         for one in result.get("seeds", [result]):
             cli.after({**result, **one})

@@ -41,7 +41,7 @@ from __future__ import annotations
 import dataclasses
 import sys
 from dataclasses import dataclass, field
-from typing import Annotated, Any
+from typing import Annotated, Any, ClassVar
 
 import tyro
 from jax.sharding import Mesh
@@ -58,9 +58,11 @@ class OffPolicyOptions(common.RunOptions):
     """The run options of the DDPG-family command lines (``train.ddpg``, ``train.td3``)."""
 
     chunks: int = 0
-    """Reporting chunks per run (0: one per epoch for the 'episodes' schedule, 50 for 'steps')."""
+    """Reporting chunks per run, 0 or more (0: one per epoch for the 'episodes' schedule, 50 for 'steps')."""
     trajectory: str | None = None
     """Reference trajectory of a tracking env (unicycle: sine, ellipse); None keeps the env's default."""
+
+    ranges: ClassVar[dict[str, tuple[int, int | None]]] = {**common.RunOptions.ranges, "chunks": (0, None)}
 
 
 @dataclass
