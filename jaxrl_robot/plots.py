@@ -7,11 +7,7 @@ import warnings
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import numpy as np
 
 __all__ = ["plot_seed_bands", "plot_staleness", "plot_training_curves", "plot_tracking", "plot_worker_curves"]
 
@@ -22,12 +18,23 @@ _CURVES = (
 )
 
 
+def _plt() -> Any:
+    """matplotlib's ``pyplot`` on the Agg backend, imported on first use (importing it takes about a
+    second, which a run that draws at its end need not spend before it starts)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
 def _save(fig: Any, out_dir: str, name: str) -> str:
     """Write ``fig`` to ``out_dir/name`` (100 dpi, tight layout), close it and return the path."""
     path = os.path.join(out_dir, name)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
-    plt.close(fig)
+    _plt().close(fig)
     return path
 
 
@@ -51,7 +58,7 @@ def plot_training_curves(rows: Sequence[Mapping[str, Any]], out_dir: str) -> lis
         y = np.array([float(r[key]) if r[key] not in ("", None) else np.nan for r in rows])
         if np.all(np.isnan(y)):
             continue
-        fig, ax = plt.subplots(figsize=(6, 3.5))
+        fig, ax = _plt().subplots(figsize=(6, 3.5))
         ax.plot(steps, y)
         ax.set_xlabel("environment steps")
         ax.set_ylabel(title.lower())
@@ -74,7 +81,7 @@ def plot_seed_bands(
     Returns:
       the written path, or None when no label has the column.
     """
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig, ax = _plt().subplots(figsize=(7, 4))
     drawn = 0
     for label, seeds in curves.items():
         seeds = [rows for rows in seeds if rows and key in rows[0]]
@@ -92,7 +99,7 @@ def plot_seed_bands(
         ax.fill_between(steps[ok], lo[ok], hi[ok], color=line.get_color(), alpha=0.2)
         drawn += 1
     if not drawn:
-        plt.close(fig)
+        _plt().close(fig)
         return None
     ax.set_xlabel("environment steps")
     ax.set_ylabel(key)
@@ -112,7 +119,7 @@ def plot_tracking(
       errors: ``[T, len(axes)]`` tracking errors.
     """
     ref, act, err = (np.asarray(a, np.float64) for a in (reference, actual, errors))
-    fig, ax = plt.subplots(figsize=(5, 5))
+    fig, ax = _plt().subplots(figsize=(5, 5))
     ax.plot(ref[:, 0], ref[:, 1], "--", label="reference")
     ax.plot(act[:, 0], act[:, 1], label="real")
     ax.set_xlabel("x")
@@ -121,7 +128,7 @@ def plot_tracking(
     ax.legend()
     ax.set_title("Referenced path and real path")
     path1 = _save(fig, out_dir, "tracking_path.png")
-    fig, ax = plt.subplots(figsize=(6, 3.5))
+    fig, ax = _plt().subplots(figsize=(6, 3.5))
     for i, name in enumerate(axes):
         ax.plot(err[:, i], label=f"{name} error")
     ax.set_xlabel("time step")
@@ -155,7 +162,7 @@ def plot_worker_curves(
     curves = [(w, y) for w, y in curves if not np.all(np.isnan(y))]
     if not curves:
         return []
-    fig, ax = plt.subplots(figsize=(6, 3.5))
+    fig, ax = _plt().subplots(figsize=(6, 3.5))
     for w, y in curves:
         ok = ~np.isnan(y)
         ax.plot(steps[ok], y[ok], label=f"worker {w}", lw=1)
@@ -184,7 +191,7 @@ def plot_staleness(rows: Sequence[Mapping[str, Any]], out_dir: str, name: str = 
     weights = _column(rows, "applied_gradients")
     shares = np.stack([_column(rows, k) for k in keys], axis=1)
     total = np.nansum(shares * weights[:, None], axis=0) / max(np.nansum(weights), 1.0)
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(9, 3.5))
+    fig, (ax1, ax2) = _plt().subplots(1, 2, figsize=(9, 3.5))
     ax1.bar([k[len(prefix) :] for k in keys], total)
     ax1.set_xlabel("staleness (global updates since the worker's sync; bin lower edge)")
     ax1.set_ylabel("share of applied gradients")

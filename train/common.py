@@ -90,6 +90,7 @@ from jaxrl_robot.checkpoint import (
     DirectoryLock,
     Restored,
 )
+from jaxrl_robot.compilation import compile_log, enable_persistent_cache, resolve_cache_dir
 from jaxrl_robot.evaluation import (
     PRECISION_THRESHOLDS,
     precision_summary,
@@ -207,6 +208,8 @@ class RunSpec(RunSettings):
       config: JSON-able dict that rebuilds the run (saved as ``config.json``).
       run_dir: an existing run directory to resume (``None``: start a new run).
       episode_length: step limit of a test episode (0: ``env.episode_length``).
+      compile_mark: :meth:`~jaxrl_robot.compilation.CompileLog.mark` taken when the command began:
+        ``eval.json``'s ``compile`` counts the compilations since (None: since the process began).
     """
 
     algo: str
@@ -216,6 +219,7 @@ class RunSpec(RunSettings):
     config: dict[str, Any]
     run_dir: str | None = None
     episode_length: int = 0
+    compile_mark: tuple | None = None
 
 
 def use_progress_bar() -> bool:
@@ -267,6 +271,19 @@ def _to_host(tree: Any) -> Any:
         return np.asarray(x)
 
     return jax.tree.map(fetch, tree)
+
+
+def process_age_s() -> float | None:
+    """Seconds since this process started (Linux ``/proc``; None elsewhere): imports, device start and
+    building the env and trainer, when called as a run begins."""
+    try:
+        with open("/proc/self/stat") as f:
+            start_ticks = int(f.read().rsplit(")", 1)[1].split()[19])
+        with open("/proc/uptime") as f:
+            uptime = float(f.read().split()[0])
+        return round(uptime - start_ticks / os.sysconf("SC_CLK_TCK"), 2)
+    except (OSError, ValueError, IndexError):
+        return None
 
 
 def make_run_dir(out: str, algo: str, env_name: str) -> str:
@@ -338,7 +355,8 @@ def evaluate(
     Tracking envs: ``envs_mjx.tracking.test_episode`` from ``t = 0`` → per-axis sums of
     |error| (plus means per step and the step count). Other envs: ``episodes`` test episodes
     → success rate, mean extra distance, mean return (whichever metrics the env has);
-    ``episodes_fn(key)``, if given, is an already compiled ``run_test_episodes`` of ``policy``.
+    ``episodes_fn(key)``, if given, is an already compiled :func:`final_episodes` of ``policy`` (with the
+    same ``precision``): one program for both sets of episodes.
     With ``precision`` and an env whose config has ``goal_threshold`` (arm7): the same episodes
     again on the env with the smallest of ``PRECISION_THRESHOLDS`` and its own threshold, reported
     as ``success_5cm``, ``success_2cm``, ``success_1cm`` and the closest distance's median, 90th
@@ -361,14 +379,37 @@ def evaluate(
     if is_racing_env(env):
         return race_evaluation(key, env, policy, episodes)
     if episodes_fn is None:
-        episodes_fn = jax.jit(lambda k: run_test_episodes(k, env, policy, episodes, episode_length or None))
-    summary = summarize_episodes(jax.device_get(episodes_fn(key)))
-    own = getattr(getattr(env, "config", None), "goal_threshold", None)
-    if precision and own is not None:
-        strict = type(env)(env.config, goal_threshold=min(PRECISION_THRESHOLDS + (own,)))
-        run = jax.jit(lambda k: run_test_episodes(k, strict, policy, episodes, episode_length or None))
-        summary.update(precision_summary(jax.device_get(run(key)), PRECISION_THRESHOLDS))
+        strict = strict_env(env, precision)
+        episodes_fn = jax.jit(functools.partial(
+            final_episodes, env=env, strict=strict, policy=policy, episodes=episodes, episode_length=episode_length
+        ))  # fmt: skip
+    out = jax.device_get(episodes_fn(key))
+    summary = summarize_episodes(out["episodes"])
+    if "strict" in out:
+        summary.update(precision_summary(out["strict"], PRECISION_THRESHOLDS))
     return {"kind": "episodes", **summary}
+
+
+def strict_env(env: Env, precision: bool) -> Env | None:
+    """With ``precision``, ``env`` (a reaching env with ``config.goal_threshold``) at the smallest of
+    ``PRECISION_THRESHOLDS`` and its own threshold, else None."""
+    own = getattr(getattr(env, "config", None), "goal_threshold", None)
+    if not precision or own is None:
+        return None
+    return type(env)(env.config, goal_threshold=min(PRECISION_THRESHOLDS + (own,)))
+
+
+def final_episodes(
+    key: jax.Array, env: Env, strict: Env | None, policy: Callable, episodes: int, episode_length: int = 0
+) -> dict[str, Any]:
+    """The final evaluation's episodes in one program: ``{"episodes": …}`` of ``env`` and, with a
+    ``strict`` env (:func:`strict_env`), ``{"strict": …}``: the same starts and goals to its threshold
+    (``run_test_episodes`` outputs, ``[episodes]`` each)."""
+    limit = episode_length or None
+    out = {"episodes": run_test_episodes(key, env, policy, episodes, limit)}
+    if strict is not None:
+        out["strict"] = run_test_episodes(key, strict, policy, episodes, limit)
+    return out
 
 
 def is_racing_env(env: Env) -> bool:
@@ -397,7 +438,7 @@ def race_evaluation(key: jax.Array, env: Env, policy: Callable, laps: int) -> di
 def compile_evaluation_async(
     spec: RunSpec, key: jax.Array, state: Any
 ) -> Future[Callable[[jax.Array, Any], Any]] | None:
-    """Compile ``(key, state) -> run_test_episodes(...)`` of ``spec.trainer.policy(state)`` in a thread.
+    """Compile ``(key, state) -> final_episodes(...)`` of ``spec.trainer.policy(state)`` in a thread.
 
     Returns a future of the compiled function, or None for tracking envs (their test episode
     is compiled when it runs). The thread overlaps XLA compilation with training. ``state`` is
@@ -405,8 +446,13 @@ def compile_evaluation_async(
     """
     if is_tracking_env(spec.env) or is_racing_env(spec.env):
         return None
-    policy_of, env, n, limit = spec.trainer.policy, spec.env, spec.eval_episodes, spec.episode_length or None
-    fn = jax.jit(lambda k, s: run_test_episodes(k, env, policy_of(s), n, limit))
+    policy_of, env, n, limit = spec.trainer.policy, spec.env, spec.eval_episodes, spec.episode_length
+    strict = strict_env(env, spec.precision)
+
+    def evaluation(k: jax.Array, s: Any) -> dict[str, Any]:
+        return final_episodes(k, env, strict, policy_of(s), n, limit)
+
+    fn = jax.jit(evaluation)
     executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="compile-eval")
     future = executor.submit(lambda: fn.lower(key, state).compile())
     executor.shutdown(wait=False)
@@ -604,6 +650,7 @@ def _run_locked(spec: RunSpec, run_dir: str) -> dict[str, Any]:
     _say(f"run directory: {run_dir}")
 
     t0 = time.perf_counter()
+    spec_startup_s = process_age_s()
     seeds = [spec.seed + i for i in range(spec.seeds)]
     several = len(seeds) > 1
     program = SeedProgram.of(trainer, len(seeds), spec.seed_map)
@@ -684,6 +731,7 @@ def _run_locked(spec: RunSpec, run_dir: str) -> dict[str, Any]:
         "finished": chunk >= trainer.num_updates,
         "env_steps": chunk * steps_per,
         "compile_s": compile_s,
+        "startup_s": spec_startup_s,
         "train_s": train_s,
     }
     for logger, d in zip(loggers, seed_dirs, strict=False):  # no loggers off process 0
@@ -708,6 +756,7 @@ def _run_locked(spec: RunSpec, run_dir: str) -> dict[str, Any]:
             precision=spec.precision,
         ))  # fmt: skip
     result["eval_s"] = time.perf_counter() - t_eval
+    result["compile"] = compile_log().since(spec.compile_mark)
     result["wall_s"] = wall_before + time.perf_counter() - t0
     if several:
         result["seeds"] = [
@@ -820,6 +869,10 @@ class RunOptions(RunSettings):
     """Processes of a run over several processes (None: from the launcher's environment)."""
     process_id: int | None = None
     """This process's index, 0 to num_processes - 1 (None: from the launcher's environment)."""
+    compile_cache: str = "auto"
+    """Folder of JAX's persistent compilation cache, so that a second run skips compiling: auto
+    ($JAXRL_ROBOT_COMPILE_CACHE, else $JAX_COMPILATION_CACHE_DIR, else ~/.cache/jaxrl-robot/xla), a
+    folder, or off (also --no-compile-cache). Not saved in config.json."""
 
     ranges: ClassVar[dict[str, tuple[int, int | None]]] = {
         **RunSettings.ranges, "chunks": (1, None), "devices": (0, None), "num_processes": (1, None),
@@ -830,7 +883,10 @@ class RunOptions(RunSettings):
 PROCESS_FIELDS = ("coordinator", "num_processes", "process_id")
 """Where the run's processes are: always from the command line, never saved in ``config.json``."""
 
-COMMAND_LINE_FIELDS = ("stop_after_steps", "progress", *PROCESS_FIELDS)
+MACHINE_FIELDS = ("compile_cache",)
+"""Options of this machine rather than of the run: taken from the command line, never saved in ``config.json``."""
+
+COMMAND_LINE_FIELDS = ("stop_after_steps", "progress", *PROCESS_FIELDS, *MACHINE_FIELDS)
 """Options a resumed run takes from its command line instead of its ``config.json``."""
 
 BRAX_PREFIX = "brax:"
@@ -1027,7 +1083,7 @@ class AlgorithmCLI:
     def parse(self, argv: Sequence[str] | None = None) -> Any:
         """Parse the command line: the preset's defaults for ``--env`` (and its env settings) first,
         then every flag; with ``--resume DIR`` the arguments saved in that run (:meth:`args_from_saved`)."""
-        argv = sys.argv[1:] if argv is None else list(argv)
+        argv = cache_flags(sys.argv[1:] if argv is None else argv)
         if not _asks_for_help(argv):
             check_command_line(argv, self.args_type.ranges)  # before the preset's env is built
         known = preparse(argv, (*self.env_fields, *self.preset_fields))
@@ -1117,7 +1173,9 @@ class AlgorithmCLI:
         options = dataclasses.asdict(args)
         config = {
             "algo": self.name,
-            "args": {k: v for k, v in options.items() if k != self.name and k not in PROCESS_FIELDS},
+            "args": {
+                k: v for k, v in options.items() if k != self.name and k not in (*PROCESS_FIELDS, *MACHINE_FIELDS)
+            },
             self.name: dataclasses.asdict(cfg),
             "iterations_per_chunk": per_chunk,
             "devices": mesh.shape[parallel.LANES],
@@ -1128,6 +1186,11 @@ class AlgorithmCLI:
     def main(self, argv: Sequence[str] | None = None) -> int:
         """Entry point of ``python -m train.<name>``; the exit code (:func:`cli_main`)."""
         return cli_main(self, argv)
+
+
+def cache_flags(argv: Sequence[str]) -> list[str]:
+    """``argv`` with ``--no-compile-cache`` spelled ``--compile-cache off`` (the field tyro parses)."""
+    return [x for a in argv for x in (("--compile-cache", "off") if a == "--no-compile-cache" else (a,))]
 
 
 def _asks_for_help(argv: Sequence[str]) -> bool:
@@ -1154,11 +1217,14 @@ def cli_main(cli: AlgorithmCLI, argv: Sequence[str] | None = None) -> int:
     """
     from envs_mjx.config import ConfigError
 
-    argv = sys.argv[1:] if argv is None else list(argv)
+    argv = cache_flags(sys.argv[1:] if argv is None else argv)
+    log = compile_log()
+    mark = log.mark()
     try:
         if not _asks_for_help(argv):
             check_command_line(argv, cli.args_type.ranges)
-            known = preparse(argv)
+            known = preparse(argv, ("compile_cache",))
+            enable_persistent_cache(resolve_cache_dir(known.compile_cache))
             parallel.initialize_multihost(known.coordinator, known.num_processes, known.process_id)
         args = cli.parse(argv)
         env, trainer, config = cli.build(args)
@@ -1173,6 +1239,7 @@ def cli_main(cli: AlgorithmCLI, argv: Sequence[str] | None = None) -> int:
         config=config,
         run_dir=args.resume,
         episode_length=int(config[cli.name]["episode_length"]),
+        compile_mark=mark,
         **settings_of(args),
     )
     try:

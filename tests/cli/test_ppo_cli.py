@@ -49,6 +49,11 @@ def test_cli_learns_arm7_on_a_small_budget_and_writes_the_run_directory(tmp_path
     assert config["args"]["env"] == "arm7" and config["args"]["preset"] in ("cpu", "fast")
     result = json.load(open(os.path.join(run_dir, "eval.json")))
     assert result["episodes"] == 50
+    # what was compiled and how long the process took to start, into the session's cache folder
+    assert result["compile"]["cache_dir"] == os.environ["JAX_COMPILATION_CACHE_DIR"]
+    assert result["compile"]["programs"] >= 3 and result["compile"]["cache_requests"] == result["compile"]["programs"]
+    assert {s["name"] for s in result["compile"]["slowest"]} >= {"jit(chunk)", "jit(evaluation)"}
+    assert result["startup_s"] > 0
     # learning: a random policy reaches almost no goal; 120 k steps of the default preset reach most
     assert result["success_rate"] >= 0.8, result
 

@@ -1,0 +1,94 @@
+"""``jaxrl_robot.compilation``: where the persistent compilation cache lives, that a second process
+finds what the first compiled, and what the CLI records of it."""
+
+import json
+import subprocess
+import sys
+
+from jaxrl_robot import compilation
+from tests.subproc import ROOT, cpu_env
+from train import common
+from train import ppo as ppo_cli
+
+
+def test_resolve_cache_dir_takes_the_option_then_our_variable_then_jax_s_then_the_user_folder(monkeypatch, tmp_path):
+    monkeypatch.delenv(compilation.CACHE_ENV, raising=False)
+    monkeypatch.delenv("JAX_COMPILATION_CACHE_DIR", raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert compilation.resolve_cache_dir(None) == str(tmp_path / "xdg" / "jaxrl-robot" / "xla")
+    assert compilation.resolve_cache_dir("auto") == compilation.default_cache_dir()
+    monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", "/somewhere/jax")
+    assert compilation.resolve_cache_dir("auto") == "/somewhere/jax"
+    monkeypatch.setenv(compilation.CACHE_ENV, str(tmp_path / "ours"))
+    assert compilation.resolve_cache_dir("auto") == str(tmp_path / "ours")
+    assert compilation.resolve_cache_dir(str(tmp_path / "flag")) == str(tmp_path / "flag")
+    for off in ("off", "OFF", "none"):
+        assert compilation.resolve_cache_dir(off) is None
+    monkeypatch.setenv(compilation.CACHE_ENV, "off")
+    assert compilation.resolve_cache_dir("auto") is None
+    assert compilation.resolve_cache_dir(str(tmp_path / "flag")) == str(tmp_path / "flag")  # the flag wins
+
+
+def test_an_unwritable_cache_folder_leaves_the_cache_off_with_one_line(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    assert compilation.enable_persistent_cache(str(blocker / "xla")) is None
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("warning: compile cache") and "--no-compile-cache" in err[0]
+
+
+_PROGRAM = """
+import json, sys
+import jax, jax.numpy as jnp
+from jaxrl_robot import compilation
+log = compilation.compile_log()
+compilation.enable_persistent_cache(sys.argv[1])
+jax.block_until_ready(jax.jit(lambda x: jnp.sin(x) @ x.T)(jnp.ones((8, 8))))
+print(json.dumps(log.since()))
+"""
+
+
+def test_a_second_process_takes_its_program_from_the_cache(tmp_path):
+    """Two processes compile the same program into one cache folder: the first misses and writes it,
+    the second finds it (the counts come from JAX's own monitoring events)."""
+    env = cpu_env()
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)
+    runs = []
+    for _ in range(2):
+        out = subprocess.run([sys.executable, "-c", _PROGRAM, str(tmp_path / "cache")], cwd=ROOT, env=env,
+                             capture_output=True, text=True, timeout=300)  # fmt: skip
+        assert out.returncode == 0, out.stderr[-2000:]
+        runs.append(json.loads(out.stdout.strip().splitlines()[-1]))
+    first, second = runs
+    assert first["cache_dir"] == second["cache_dir"] == str(tmp_path / "cache")
+    assert first["programs"] >= 1 and first["cache_misses"] == first["cache_requests"] >= 1
+    assert first["cache_hits"] == 0
+    assert second["cache_requests"] == first["cache_requests"]
+    assert second["cache_hits"] == second["cache_requests"] and second["cache_misses"] == 0
+
+
+def test_compile_log_counts_a_new_program_and_names_it():
+    import jax
+    import jax.numpy as jnp
+
+    x = jax.block_until_ready(jnp.arange(5))
+    log = compilation.compile_log()
+    mark = log.mark()
+
+    def twice_plus_seven(x):
+        return 2 * x + 7
+
+    jax.block_until_ready(jax.jit(twice_plus_seven)(x))
+    got = log.since(mark)
+    assert got["programs"] == 1
+    assert got["compile_s"] >= 0 and got["trace_s"] >= 0
+    assert [s["name"] for s in got["slowest"]] == ["jit(twice_plus_seven)"]
+
+
+def test_no_compile_cache_is_the_off_spelling_and_the_cache_option_is_not_saved():
+    assert common.cache_flags(["--env", "arm7", "--no-compile-cache"]) == ["--env", "arm7", "--compile-cache", "off"]
+    args = ppo_cli.CLI.parse(["--env", "brax:fast", "--no-compile-cache"])
+    assert args.compile_cache == "off"
+    assert "compile_cache" in common.COMMAND_LINE_FIELDS  # a resumed run takes it from its command line
+    _, _, config = ppo_cli.CLI.build(args)
+    assert "compile_cache" not in config["args"]
