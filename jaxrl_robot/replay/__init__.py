@@ -3,7 +3,8 @@
 * :func:`make_uniform_replay` — ring buffer with uniform sampling.
 * :mod:`sum_tree` — array-backed sum-tree (batched set, stratified sampling, Fig. 3.2).
 * :mod:`block_tree` — two-level sum-tree, one fused kernel per sample and per update on a GPU.
-* :func:`make_prioritized_replay` — prioritised replay (Eq. 3.9–3.10).
+* :func:`make_prioritized_replay` — prioritised replay (Eq. 3.9–3.10); NaN / inf TD errors and
+  out-of-range indices cannot poison it (:func:`count_nonfinite` counts the replaced errors).
 * :func:`make_her` — hindsight relabelling with ``final`` / ``future`` / ``random`` goals.
 
 State is a ``flax.struct.dataclass`` with static sizes outside the pytree; nothing is jitted
@@ -16,6 +17,7 @@ from jaxrl_robot.replay.prioritized import (
     PrioritizedReplay,
     PrioritizedReplayState,
     PrioritizedSample,
+    count_nonfinite,
     importance_weights,
     make_prioritized_replay,
 )
@@ -35,6 +37,7 @@ __all__ = [
     "UniformReplayState",
     "UniformSample",
     "block_tree",
+    "count_nonfinite",
     "flatten_copies",
     "importance_weights",
     "make_her",

@@ -20,7 +20,10 @@ leaves** (a fresh sum of ``S`` values, never an added delta), so the stored sums
 function of the current leaves only: nothing drifts over millions of updates, a block of
 zeros sums to exactly 0 and so is never entered, and zero leaves are never chosen inside a
 block.  Repeated indices in one batch follow sequential semantics (the last occurrence
-wins).
+wins).  As in the sum tree, indices outside ``[0, capacity)`` are ignored, NaN values are
+stored as 0 and values are clipped to :func:`~jaxrl_robot.replay.sum_tree.value_limit`, so the
+total stays finite; :func:`set_priorities` replaces a non-finite TD error by the largest raw
+priority (:class:`PriorityRule`).
 
 Backends (``backend=``):
 
@@ -61,14 +64,17 @@ from jaxrl_robot.replay import sum_tree
 __all__ = [
     "BACKENDS",
     "BlockTreeState",
+    "PriorityRule",
     "find",
     "get",
     "init",
     "next_scalars",
     "probabilities",
+    "raw_priorities",
     "rebuild",
     "resolve_backend",
     "set",
+    "set_priorities",
     "stratified_sample_with_priorities",
     "total",
 ]
@@ -259,7 +265,7 @@ def stratified_sample_with_priorities(
     """Stratified sampling (Fig. 3.2): one draw in each of ``batch_size`` equal segments of ``[0, p_total)``.
 
     Returns ``([batch_size] int32 leaf indices, [batch_size] their priorities)``.  With
-    ``total == 0`` (empty tree) the result is meaningless; callers sample once something is stored.
+    ``total == 0`` (empty tree) every index is 0 (with priority 0).
     """
     u = jax.random.uniform(key, (batch_size,), state.leaf_values.dtype)
     backend = resolve_backend(backend)
@@ -308,25 +314,51 @@ def _set_xla(state: BlockTreeState, indices: jax.Array, values: jax.Array, keep:
 class PriorityRule(NamedTuple):
     """A prioritised replay's update rule, applied inside the update kernel (static).
 
-    Values given are TD errors ``δ``; the leaf becomes ``(|δ| + eps)^alpha`` (Eq. 3.9), and the
-    replay's scalars ``[max raw priority, β]`` become ``[max(·, max_i |δ_i| + eps), min(β + beta_increment, 1)]``.
+    Values given are TD errors ``δ``; the raw priority is ``p = |δ| + eps`` kept in ``[tiny, max_raw]``
+    (``tiny``: the smallest normal float), and where ``δ`` is NaN or ``±inf`` the largest raw priority
+    after the update, ``max(largest so far, max p over the batch's finite rows)``; the leaf becomes
+    ``p^alpha`` (Eq. 3.9), and the replay's scalars ``[max raw priority, β]`` become
+    ``[max(·, max_i p_i), min(β + beta_increment, 1)]``.
     """
 
     alpha: float
     eps: float
     beta_increment: float
+    max_raw: float = float(jnp.finfo(jnp.float32).max) / 4
+    """The largest raw priority (a replay passes ``sum_tree.value_limit(capacity)``)."""
 
 
-def _apply_rule(values: jax.Array, rule: PriorityRule | None) -> tuple[jax.Array, jax.Array]:
+def raw_priorities(
+    td_errors: jax.Array, largest: jax.Array, rule: PriorityRule, valid: jax.Array | None = None
+) -> jax.Array:
+    """Raw priorities ``[B]`` of TD errors ``[B]`` under ``rule`` (see :class:`PriorityRule`).
+
+    ``largest``: ``[]`` the replay's largest raw priority so far; ``valid``: optional ``[B]`` bool, the
+    rows that count toward the largest.  A non-finite error takes ``max(largest, max of the valid
+    finite rows)``, so it is the same whether ``largest`` is read before or after that maximum is
+    stored (the update kernel's programs read it while the first program writes it).
+    """
+    finite = jnp.abs(td_errors) <= jnp.finfo(td_errors.dtype).max  # False for NaN and ±inf
+    raw = jnp.minimum(jnp.maximum(jnp.abs(td_errors) + rule.eps, jnp.finfo(td_errors.dtype).tiny), rule.max_raw)
+    seen = finite if valid is None else finite & valid
+    top = jnp.maximum(largest, jnp.max(jnp.where(seen, raw, 0)))
+    return jnp.where(finite, raw, top)
+
+
+def _apply_rule(
+    values: jax.Array, rule: PriorityRule | None, capacity: int, largest: jax.Array | None = None,
+    valid: jax.Array | None = None,
+) -> tuple[jax.Array, jax.Array]:  # fmt: skip
     """``(leaf values, raw priorities)`` from the given values: ``[B] -> ([B], [B])``."""
     if rule is None:
-        return jnp.maximum(values, 0), values
-    raw = jnp.abs(values) + rule.eps
+        return sum_tree.clean_values(values, capacity), values
+    raw = raw_priorities(values, largest, rule, valid)
     return jnp.exp(rule.alpha * jnp.log(raw)), raw  # raw > 0
 
 
 def next_scalars(scalars: jax.Array, raw: jax.Array, valid: jax.Array | None, rule: PriorityRule) -> jax.Array:
-    """``[2]`` replay scalars ``[max raw priority, β]`` after an update (see :class:`PriorityRule`)."""
+    """``[2]`` replay scalars ``[max raw priority, β]`` after an update (see :class:`PriorityRule`);
+    ``raw [B]`` raw priorities, only the ``valid [B]`` rows count (all when None)."""
     seen = jnp.max(raw if valid is None else jnp.where(valid, raw, 0))
     pos = jax.lax.broadcasted_iota(jnp.int32, (2,), 0)
     return jnp.where(pos == 0, jnp.maximum(scalars, seen), jnp.minimum(scalars + rule.beta_increment, 1.0))
@@ -335,8 +367,13 @@ def next_scalars(scalars: jax.Array, raw: jax.Array, valid: jax.Array | None, ru
 def _set_pallas(
     state: BlockTreeState, indices: jax.Array, values: jax.Array, valid: jax.Array | None, keep: jax.Array | None,
     interpret: bool, rule: PriorityRule | None = None, scalars: jax.Array | None = None,
+    stored: jax.Array | None = None,
 ) -> tuple[BlockTreeState, jax.Array | None]:  # fmt: skip
-    """The update kernel: one program per batch row; the first valid row of each touched block owns it."""
+    """The update kernel: one program per batch row; the first valid row of each touched block owns it.
+
+    A row is valid where ``valid`` (all when None) and ``0 <= index < min(capacity, stored)``.  With
+    ``rule``, every program reads ``scalars`` (aliased, written by program 0): see :func:`raw_priorities`.
+    """
     from jax.experimental import pallas as pl
     from jax.experimental.pallas import triton as plgpu
 
@@ -347,8 +384,9 @@ def _set_pallas(
         indices, values = jnp.pad(indices, pad), jnp.pad(values, pad)
         valid = jnp.pad(jnp.ones((n,), bool) if valid is None else valid, pad)
         keep = None if keep is None else jnp.pad(keep, pad)
+    limit = None if stored is None else jnp.reshape(stored.astype(jnp.int32), (1,))
     size = state.block_size
-    optional = {"valid": valid, "keep": keep, "scalars": scalars}
+    optional = {"valid": valid, "keep": keep, "scalars": scalars, "limit": limit}
     names = ["indices", "values", *(k for k, v in optional.items() if v is not None), "leaves", "sums"]
 
     def kernel(*refs):
@@ -356,13 +394,20 @@ def _set_pallas(
         out = dict(zip(["leaves", "sums", "scalars"], refs[len(names) :], strict=False))
         i = pl.program_id(0)
         idx = ref["indices"][...]
-        ok = ref["valid"][...] if valid is not None else jnp.ones((padded,), bool)
-        val, raw = _apply_rule(ref["values"][...], rule)
+        given = ref["valid"][...] if valid is not None else jnp.ones((padded,), bool)
+        ok = given & (idx >= 0) & (idx < state.capacity)
+        if limit is not None:
+            ok = ok & (idx < jnp.sum(ref["limit"][...]))
+        largest = None
+        if scalars is not None:
+            pos = jax.lax.broadcasted_iota(jnp.int32, (2,), 0)
+            largest = jnp.sum(jnp.where(pos == 0, ref["scalars"][...], 0))
+        val, raw = _apply_rule(ref["values"][...], rule, state.capacity, largest, ok)
         if scalars is not None:
 
             @pl.when(i == 0)
             def _():
-                out["scalars"][...] = next_scalars(ref["scalars"][...], raw, ok if valid is not None else None, rule)
+                out["scalars"][...] = next_scalars(ref["scalars"][...], raw, ok, rule)
 
         block = idx // size
         me = jax.lax.broadcasted_iota(jnp.int32, (padded,), 0)
@@ -372,7 +417,8 @@ def _set_pallas(
 
         @pl.when(first_of_block)
         def _():
-            write = mine & (_last_occurrence(idx, ok) if keep is None else ref["keep"][...])
+            # equal indices are equally in range: only the given rows decide which repeat is the last
+            write = mine & (_last_occurrence(idx, given) if keep is None else ref["keep"][...])
             # rows not written store a written row's value at its slot: an unmasked store is the same
             # on the GPU and in the interpreter (whose masked store writes old values back)
             r = jnp.min(jnp.where(write, me, padded))
@@ -425,8 +471,10 @@ def set(
 
     Args:
       state: the tree.
-      indices: ``[B]`` int leaf indices in ``[0, capacity)``; repeats allowed (last wins).
-      values: ``[B]`` new priorities (negative values are stored as 0).
+      indices: ``[B]`` int leaf indices; repeats allowed (last wins); rows outside
+        ``[0, capacity)`` are ignored.
+      values: ``[B]`` new priorities (negative and NaN values are stored as 0, values above
+        :func:`~jaxrl_robot.replay.sum_tree.value_limit` as the limit).
       mask: optional ``[B]`` bool; entries with False are ignored.
       unique_indices: static promise that the masked-in ``indices`` are distinct.
       backend: see the module docstring.
@@ -443,25 +491,28 @@ def set_priorities(
     scalars: jax.Array,
     rule: PriorityRule,
     backend: str = "auto",
+    size: jax.Array | None = None,
 ) -> tuple[BlockTreeState, jax.Array]:
     """A prioritised replay's whole update in one kernel: leaves ``(|δ| + ε)^α`` and the replay's scalars.
 
     Args:
       state: the tree.
       indices: ``[B]`` sampled leaf indices (repeats: last wins).
-      td_errors: ``[B]`` TD errors ``δ``.
+      td_errors: ``[B]`` TD errors ``δ`` (NaN and ``±inf`` take the largest raw priority, :class:`PriorityRule`).
       scalars: ``[2]`` float32 ``[largest raw priority seen, β]``.
       rule: :class:`PriorityRule` (static).
       backend: see the module docstring.
+      size: optional ``[]`` int, the replay's number of stored rows: rows at ``indices >= size``
+        neither write nor count toward the largest priority (rows outside ``[0, capacity)`` never do).
     Returns:
       ``(tree, [2] new scalars)``.
     """
-    return _update(state, indices, td_errors, None, False, backend, rule, scalars)
+    return _update(state, indices, td_errors, None, False, backend, rule, scalars, size)
 
 
 def _update(
     state: BlockTreeState, indices: jax.Array, values: jax.Array, mask: jax.Array | None, unique_indices: bool,
-    backend: str, rule: PriorityRule | None = None, scalars: jax.Array | None = None,
+    backend: str, rule: PriorityRule | None = None, scalars: jax.Array | None = None, size: jax.Array | None = None,
 ) -> tuple[BlockTreeState, jax.Array | None]:  # fmt: skip
     chex.assert_rank([indices, values], 1)
     chex.assert_equal_shape([indices, values])
@@ -469,8 +520,12 @@ def _update(
     indices = indices.astype(jnp.int32)
     values = values.astype(state.leaf_values.dtype)
     if backend == "xla" or indices.shape[0] > KERNEL_BATCH_MAX:
-        leaf, raw = _apply_rule(values, rule)
+        mask = sum_tree.in_range(indices, state.capacity, mask)
+        if size is not None:
+            mask = mask & (indices < size)
+        leaf, raw = _apply_rule(values, rule, state.capacity, None if scalars is None else scalars[0], mask)
         state = _set_xla(state, indices, leaf, _keep(indices, mask, unique_indices))
         return state, (None if rule is None else next_scalars(scalars, raw, mask, rule))
+    # the kernel checks the range itself; a unique write's mask only needs the caller's rows
     keep = _keep(indices, mask, True) if unique_indices else None  # None: found inside the kernel
-    return _set_pallas(state, indices, values, mask, keep, backend == "interpret", rule, scalars)
+    return _set_pallas(state, indices, values, mask, keep, backend == "interpret", rule, scalars, size)

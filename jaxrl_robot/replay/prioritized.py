@@ -17,6 +17,20 @@
 * After learning, :func:`update_priorities` sets ``p_i = |δ_i| + ε`` from the TD errors
   ``δ`` of the sampled transitions; ``ε > 0`` keeps every stored transition reachable.
 
+Bad input cannot poison the buffer (every raw priority stays finite and positive, so do the
+total, ``max_priority``, the probabilities and the weights):
+
+* a NaN or ``±inf`` TD error (or given priority) is replaced by the largest raw priority after
+  the batch's finite ones, ``max(max_priority, max p of the batch)``; :func:`count_nonfinite`
+  counts them (the DDPG/TD3 learner logs it as ``per_nonfinite_td``);
+* raw priorities are kept in ``[tiny, value_limit(capacity)]`` (the smallest normal float and
+  ``max float / (4 · capacity)``, :func:`~jaxrl_robot.replay.sum_tree.value_limit`);
+* ``update_priorities`` ignores indices outside ``[0, size)`` (negative ones included): they
+  neither write nor raise ``max_priority``, so an empty slot never gets probability mass and
+  ``sample`` never returns an index ``>= size``;
+* ``sample`` of an empty buffer raises a ``ValueError`` when called eagerly; under ``jit`` it
+  returns index 0 with probability and weight 0.
+
 Trees (``tree=``): the ``branching``-ary :mod:`~jaxrl_robot.replay.sum_tree` (one reduction
 per level to sample, one ``[B, b]`` row scatter per level to update) is the default on every
 backend; the two-level :mod:`~jaxrl_robot.replay.block_tree` (``tree="block"``), whose sample
@@ -49,6 +63,7 @@ __all__ = [
     "PrioritizedReplayState",
     "PrioritizedSample",
     "TREES",
+    "count_nonfinite",
     "importance_weights",
     "make_prioritized_replay",
 ]
@@ -116,10 +131,20 @@ class PrioritizedReplay(NamedTuple):
 
 
 def importance_weights(probabilities: jax.Array, size: jax.Array, beta: jax.Array) -> jax.Array:
-    """Eq. 3.10: ``w_i = (N · P(i))^(-β) / max_j w_j`` over the mini-batch: ``[B] -> [B]``."""
+    """Eq. 3.10: ``w_i = (N · P(i))^(-β) / max_j w_j`` over the mini-batch: ``[B] -> [B]``.
+
+    ``N · P(i)`` below the smallest normal float counts as that float, so the weights stay finite.
+    """
     chex.assert_rank(probabilities, 1)
-    log_w = -beta * jnp.log(size.astype(probabilities.dtype) * probabilities)
+    scaled = size.astype(probabilities.dtype) * probabilities
+    log_w = -beta * jnp.log(jnp.maximum(scaled, jnp.finfo(probabilities.dtype).tiny))
     return jnp.exp(log_w - jnp.max(log_w))
+
+
+def count_nonfinite(td_errors: jax.Array) -> jax.Array:
+    """``[B] -> [] int32``: how many TD errors are NaN or ``±inf`` (``update_priorities`` replaces
+    each by the largest priority)."""
+    return jnp.sum(~jnp.isfinite(td_errors), dtype=jnp.int32)
 
 
 def make_prioritized_replay(
@@ -168,7 +193,8 @@ def make_prioritized_replay(
     capacity, batch_size = int(capacity), int(batch_size)
     if tree == "auto":
         tree = "sum"
-    rule = block_tree.PriorityRule(float(alpha), float(priority_eps), float(beta_increment))
+    rule = block_tree.PriorityRule(float(alpha), float(priority_eps), float(beta_increment),
+                                   sum_tree.value_limit(capacity))
     if tree == "block":
         new_tree = lambda: block_tree.init(capacity)  # noqa: E731
         set_tree = functools.partial(block_tree.set, backend=backend)
@@ -202,38 +228,57 @@ def make_prioritized_replay(
     ) -> PrioritizedReplayState:
         """Store the rows of ``items`` ``[N, ...]`` where ``mask [N]`` is True.
 
-        ``priorities [N]``: raw priorities ``p`` (e.g. ``|δ| + ε`` from a worker's critic);
-        default: the current ``max_priority``.
+        ``priorities [N]``: raw priorities ``p`` (e.g. ``|δ| + ε`` from a worker's critic; NaN and
+        ``±inf`` take the largest priority, as in ``update_priorities``); default: the current
+        ``max_priority``.
         """
         data, slots, keep, pos, size = ring_write(state.data, items, state.insert_pos, state.size, capacity, mask)
         if priorities is None:
             p = jnp.full(slots.shape, state.max_priority)
             scalars = state.scalars
         else:
-            p = jnp.abs(priorities.astype(jnp.float32)) + priority_eps
+            p = block_tree.raw_priorities(priorities.astype(jnp.float32), state.max_priority, rule, keep)
             scalars = state.scalars.at[0].max(jnp.max(jnp.where(keep, p, 0.0)))
         tree = set_tree(state.tree, slots, p**alpha, mask=keep, unique_indices=True)  # fresh ring slots
         return state.replace(data=data, tree=tree, insert_pos=pos, size=size, scalars=scalars)
 
     def sample(key: jax.Array, state: PrioritizedReplayState) -> PrioritizedSample:
-        """Stratified prioritised mini-batch with probabilities and IS weights at the current β."""
+        """Stratified prioritised mini-batch with probabilities and IS weights at the current β.
+
+        Raises:
+          ValueError: called eagerly (outside ``jit``) on an empty buffer.  Under ``jit`` an empty
+            buffer gives indices 0 with probabilities and weights 0.
+        """
+        if not isinstance(state.size, jax.core.Tracer) and int(state.size) == 0:
+            raise ValueError("sample: the prioritised replay is empty (size 0); call add before sample")
         indices, priorities = sample_tree(key, state.tree)
-        probs = priorities / tree_total(state.tree)
-        weights = importance_weights(probs, state.size, state.beta)
+        total = tree_total(state.tree)  # > 0 exactly when size > 0: stored leaves are >= tiny
+        if tree != "block":  # the block tree's descent of an empty tree already ends on 0
+            indices = jnp.where(total > 0, indices, 0)
+        probs = priorities / jnp.maximum(total, jnp.finfo(priorities.dtype).tiny)  # empty: 0 / tiny
+        weights = jnp.where(state.size > 0, importance_weights(probs, state.size, state.beta), 0.0)
         experience = jax.tree.map(lambda d: d[indices], state.data)
         return PrioritizedSample(experience=experience, indices=indices, probabilities=probs, weights=weights)
 
     def update_priorities(
         state: PrioritizedReplayState, indices: jax.Array, td_errors: jax.Array
     ) -> PrioritizedReplayState:
-        """Set ``p_i = |δ_i| + ε`` at ``indices [B]`` (repeats: last wins) and anneal β."""
-        if tree == "block":  # the leaves and both scalars in one kernel on a GPU
+        """Set ``p_i = |δ_i| + ε`` at ``indices [B]`` (repeats: last wins) and anneal β.
+
+        A NaN or ``±inf`` ``δ_i`` sets ``p_i`` to ``max(max_priority, max p of the batch's finite
+        rows)``, the new ``max_priority`` (count them with :func:`count_nonfinite`); indices outside
+        ``[0, size)`` are ignored: they neither write nor raise ``max_priority``.
+        """
+        indices = indices.astype(jnp.int32)
+        td_errors = td_errors.astype(jnp.float32)
+        if tree == "block":  # the leaves and both scalars in one kernel on a GPU (it checks the indices)
             new_tree, scalars = block_tree.set_priorities(
-                state.tree, indices, td_errors, state.scalars, rule, backend=backend
+                state.tree, indices, td_errors, state.scalars, rule, backend=backend, size=state.size
             )
             return state.replace(tree=new_tree, scalars=scalars)
-        p = jnp.abs(td_errors.astype(jnp.float32)) + priority_eps
-        new_tree = sum_tree.set(state.tree, indices, p**alpha)
-        return state.replace(tree=new_tree, scalars=block_tree.next_scalars(state.scalars, p, None, rule))
+        valid = (indices >= 0) & (indices < state.size)
+        p = block_tree.raw_priorities(td_errors, state.max_priority, rule, valid)
+        new_tree = sum_tree.set(state.tree, indices, p**alpha, mask=valid)
+        return state.replace(tree=new_tree, scalars=block_tree.next_scalars(state.scalars, p, valid, rule))
 
     return PrioritizedReplay(init=init, add=add, sample=sample, update_priorities=update_priorities)

@@ -66,6 +66,10 @@ Numerical robustness (float32):
   Negative priorities are clamped to 0 when set.  XLA flushes subnormal floats
   (< 1.2e-38 in float32) to zero, so such priorities count as 0; the prioritised replay
   keeps every priority at or above ``ε^α``.
+* **Bad input cannot poison the tree.**  NaN values are stored as 0 and values (``+inf``
+  included) are clipped to :func:`value_limit` ``= max float / (4 · capacity)``, so the total
+  of all leaves stays finite; indices outside ``[0, capacity)`` (negative ones included, which
+  JAX indexing would otherwise wrap to the end) are ignored like masked-out rows.
 * **Duplicate indices in one batch** (common when priorities of a prioritised mini-batch
   are written back) follow sequential semantics: the *last* occurrence wins.  XLA leaves
   the order of a scatter with repeated indices unspecified, so repeated indices are
@@ -84,9 +88,11 @@ __all__ = [
     "PAIRWISE_MAX",
     "UNROLL_MAX",
     "SumTreeState",
+    "clean_values",
     "find",
     "find_with_priorities",
     "get",
+    "in_range",
     "init",
     "last_occurrence_mask",
     "probabilities",
@@ -96,6 +102,7 @@ __all__ = [
     "stratified_sample",
     "stratified_sample_with_priorities",
     "total",
+    "value_limit",
 ]
 
 UNROLL_MAX = 32
@@ -137,6 +144,23 @@ class SumTreeState:
         b = self.branching
         sums = [p.reshape(-1, b)[:, -1] for p in self.prefix]  # level l-1 from the blocks of level l
         return (*sums, self.leaf_values)
+
+
+def value_limit(capacity: int, dtype: jnp.dtype = jnp.float32) -> float:
+    """The largest value a leaf stores, ``max float / (4 · capacity)``: the sum of ``capacity`` such
+    leaves, and every running sum, stays finite with room for rounding."""
+    return float(jnp.finfo(dtype).max) / (4 * int(capacity))
+
+
+def clean_values(values: jax.Array, capacity: int) -> jax.Array:
+    """``[B] -> [B]``: values as leaves store them: NaN and negative -> 0, above :func:`value_limit` -> the limit."""
+    return jnp.where(values > 0, jnp.minimum(values, value_limit(capacity, values.dtype)), 0)
+
+
+def in_range(indices: jax.Array, capacity: int, mask: jax.Array | None = None) -> jax.Array:
+    """``[B] bool``: ``0 <= indices < capacity`` (and ``mask``, when given)."""
+    inside = (indices >= 0) & (indices < capacity)
+    return inside if mask is None else inside & mask.astype(bool)
 
 
 def _depth(capacity: int, branching: int) -> int:
@@ -234,8 +258,10 @@ def set(
 
     Args:
       state: the tree.
-      indices: ``[B]`` int leaf indices in ``[0, capacity)``; repeats allowed (last wins).
-      values: ``[B]`` new priorities (negative values are stored as 0).
+      indices: ``[B]`` int leaf indices; repeats allowed (last wins); rows outside
+        ``[0, capacity)`` are ignored.
+      values: ``[B]`` new priorities (negative and NaN values are stored as 0, values above
+        :func:`value_limit` as the limit).
       mask: optional ``[B]`` bool; entries with False are ignored.
       unique_indices: static promise that the masked-in ``indices`` are distinct (a ring
         buffer's fresh slots); skips the search for repeats.
@@ -245,15 +271,14 @@ def set(
     chex.assert_rank([indices, values], 1)
     chex.assert_equal_shape([indices, values])
     b = state.branching
+    mask = in_range(indices, state.capacity, mask)
     if unique_indices:
-        keep = jnp.ones(indices.shape, bool) if mask is None else mask
-    elif mask is None:
-        keep = last_occurrence_mask(indices)
-    else:  # masked-out rows must not shadow an earlier masked-in row with the same index
+        keep = mask
+    else:  # ignored rows must not shadow an earlier written row with the same index
         keep = last_occurrence_mask(jnp.where(mask, indices, -1)) & mask
     leaves = state.leaf_values
     write_at = jnp.where(keep, indices, leaves.shape[0])  # out of range -> dropped
-    values = jnp.maximum(values.astype(leaves.dtype), 0)
+    values = clean_values(values.astype(leaves.dtype), state.capacity)
     state = state.replace(leaf_values=leaves.at[write_at].set(values, mode="drop"))
     prefix = list(state.prefix)
     node = jnp.where(keep, indices, 0)  # recomputing an unchanged block is harmless

@@ -3,9 +3,10 @@
 One update: sample a mini-batch (uniformly, or prioritised with importance weights ``w``,
 Eq. 3.9–3.10); critic step on ``mean w (Q(s, a) − y)²`` with ``y = r + γ (1 − d) Q'(s', μ'(s'))``
 (Eq. 3.4–3.5); actor step on ``−mean Q(s, μ(s))`` (Eq. 3.6); soft target updates with ε; with
-PER, new priorities ``|y − Q| + ε`` and β annealing.  Options: twin critics with the clipped
-double-Q target (Eq. 6.2), target smoothing (Eq. 6.3), the actor and targets moving every
-``policy_delay`` critic updates, reward scale and shift, target clipping.
+PER, new priorities ``|y − Q| + ε`` and β annealing (metric ``per_nonfinite_td``: the non-finite
+errors per update that the replay replaced by its largest priority, 0 in a healthy run).  Options:
+twin critics with the clipped double-Q target (Eq. 6.2), target smoothing (Eq. 6.3), the actor and
+targets moving every ``policy_delay`` critic updates, reward scale and shift, target clipping.
 
 Who computes the gradient is a :class:`Workers` strategy, so the single learner and distributed
 DDPG run the same update:
@@ -51,12 +52,13 @@ from jaxrl_robot.agents.ddpg.losses import (
     twin_critic_loss,
 )
 from jaxrl_robot.agents.ddpg.networks import DDPGActor, DDPGCritic
-from jaxrl_robot.replay import Transition
+from jaxrl_robot.replay import Transition, count_nonfinite
 from jaxrl_robot.types import RunningStats
 
 __all__ = ["SINGLE", "Learner", "Workers", "make_learner", "make_networks", "make_optimizer", "sample", "worker_shards"]
 
 LOSS_METRICS = ("critic_loss", "actor_loss", "q", "td_abs")
+PER_METRICS = ("per_nonfinite_td",)
 
 
 class Workers(NamedTuple):
@@ -252,6 +254,8 @@ def make_learner(
             buf = replay.update_priorities(buf, indices, err)
         out = {"critic_loss": closs, "actor_loss": aloss, "q": workers.mean(jnp.mean(q)),
                "td_abs": workers.mean(jnp.mean(jnp.abs(td)))}
+        if config.per:  # every worker's errors (gathered): the same count on every device
+            out["per_nonfinite_td"] = count_nonfinite(err).astype(jnp.float32)
         return (actor_p, critic_p, t_actor, t_critic, a_opt, c_opt, buf), out
 
     def learn(
@@ -268,7 +272,7 @@ def make_learner(
 
         def skip(c):
             zero = jnp.zeros((), jnp.float32)
-            return c, dict.fromkeys(LOSS_METRICS, zero), zero
+            return c, dict.fromkeys(LOSS_METRICS + (PER_METRICS if config.per else ()), zero), zero
 
         carry, sums, count = jax.lax.cond(state.replay.size >= min_stored, run, skip, carry)
         a_p, c_p, ta, tc, ao, co, buf = carry
