@@ -222,7 +222,7 @@ def test_too_few_evaluations_is_a_one_line_error(capsys):
         assert e.code == 2
     else:
         raise AssertionError("--evals 1 must stop the benchmark")
-    assert "--evals 1: at least 2" in capsys.readouterr().err.strip().splitlines()[-1]
+    assert "argument --evals: 1 is out of range; allowed >= 2" in capsys.readouterr().err.strip().splitlines()[-1]
 
 
 def test_devices_beyond_the_machine_s_and_vmapped_seeds_on_the_cpu_are_one_line_errors(capsys):
@@ -230,7 +230,7 @@ def test_devices_beyond_the_machine_s_and_vmapped_seeds_on_the_cpu_are_one_line_
 
     n = jax.device_count()
     cases = [(["--devices", str(n + 1)], f"--devices {n + 1}: this machine has {n}"),
-             (["--devices", "-1"], "--devices -1: this machine has")]  # fmt: skip
+             (["--devices", "-1"], "argument --devices: -1 is out of range; allowed >= 0")]  # fmt: skip
     if jax.default_backend() == "cpu":  # vmapped seeds of MJX envs stop XLA:CPU's compiler
         cases.append((["--seed-map", "vmap", "--no-brax"], "--seed-map vmap: on the CPU, XLA stops"))
     for argv, message in cases:

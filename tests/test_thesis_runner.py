@@ -16,7 +16,7 @@ import train.ddpg as train_ddpg
 from benchmarks import thesis
 
 
-def test_table_3_1_smoke_report_resume_and_missing_rows(tmp_path, monkeypatch):
+def test_table_3_1_smoke_report_resume_and_missing_rows(tmp_path, monkeypatch, capsys):
     runs, out = str(tmp_path / "runs"), str(tmp_path / "out")
     table = thesis.select(["3.1"], None)
     assert [r.thesis for r in table] == [79, 78, 81, 87, 56, 9]
@@ -88,8 +88,13 @@ def test_table_3_1_smoke_report_resume_and_missing_rows(tmp_path, monkeypatch):
     assert "error" not in got["sparse-final"] and got["sparse-final"]["finished"] is True
     assert os.path.exists(os.path.join(par_runs, "3.1", "sparse-final", "seeds0.log"))
     assert all(r["seeds"][0].get("skipped") for r in thesis.main(par)["rows"])
-    for bad, message in ((["--parallel", "0"], "--parallel 0 is out of range"),
-                         (["--parallel", "2", "--jobs", "2"], "exclude each other"),
+    with pytest.raises(SystemExit) as exit_info:  # argparse: usage, then the one error line
+        thesis.main([*argv, "--parallel", "0"])
+    assert exit_info.value.code == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1].endswith(
+        "error: argument --parallel: 0 is out of range; allowed >= 1"
+    )
+    for bad, message in ((["--parallel", "2", "--jobs", "2"], "exclude each other"),
                          (["--gpus", "0"], "--gpus needs --parallel")):  # fmt: skip
         with pytest.raises(SystemExit, match=message):
             thesis.main([*argv, *bad])

@@ -392,11 +392,12 @@ def evaluate(
 
 def strict_env(env: Env, precision: bool) -> Env | None:
     """With ``precision``, ``env`` (a reaching env with ``config.goal_threshold``) at the smallest of
-    ``PRECISION_THRESHOLDS`` and its own threshold, else None."""
+    ``PRECISION_THRESHOLDS`` and its own threshold (``env`` itself where that is its own), else None."""
     own = getattr(getattr(env, "config", None), "goal_threshold", None)
     if not precision or own is None:
         return None
-    return type(env)(env.config, goal_threshold=min(PRECISION_THRESHOLDS + (own,)))
+    strict = min(PRECISION_THRESHOLDS + (own,))
+    return env if strict == own else type(env)(env.config, goal_threshold=strict)
 
 
 def final_episodes(
@@ -404,11 +405,11 @@ def final_episodes(
 ) -> dict[str, Any]:
     """The final evaluation's episodes in one program: ``{"episodes": …}`` of ``env`` and, with a
     ``strict`` env (:func:`strict_env`), ``{"strict": …}``: the same starts and goals to its threshold
-    (``run_test_episodes`` outputs, ``[episodes]`` each)."""
+    (``run_test_episodes`` outputs, ``[episodes]`` each; the same episodes where ``strict`` is ``env``)."""
     limit = episode_length or None
     out = {"episodes": run_test_episodes(key, env, policy, episodes, limit)}
     if strict is not None:
-        out["strict"] = run_test_episodes(key, strict, policy, episodes, limit)
+        out["strict"] = out["episodes"] if strict is env else run_test_episodes(key, strict, policy, episodes, limit)
     return out
 
 
