@@ -35,6 +35,11 @@ CACHE_ENV = "JAXRL_ROBOT_COMPILE_CACHE"
 OFF = ("off", "none", "no", "false", "0")
 """Spellings of "no persistent cache" for ``--compile-cache`` and :data:`CACHE_ENV`."""
 
+MIN_COMPILE_S = 0.1
+"""Programs that compile faster than this are not cached: a run's few large programs (its chunk, its
+evaluation, its initialisation) are what a second run saves, while caching every small one would fill
+the folder with entries that JAX's size limit scans on every write (unless JAX's own variable is set)."""
+
 DEFAULT_MAX_BYTES = 8 << 30
 """Size limit of the cache folder (least recently used entries go first) unless JAX's own is set."""
 
@@ -71,7 +76,7 @@ def resolve_cache_dir(option: str | None = None) -> str | None:
 def enable_persistent_cache(path: str | None) -> str | None:
     """Point JAX's persistent compilation cache at ``path`` (None: leave the cache off).
 
-    Every program is cached, however briefly it compiled (unless
+    Every program that took :data:`MIN_COMPILE_S` or longer to compile is cached (unless
     ``JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS`` is set), within :data:`DEFAULT_MAX_BYTES` (unless
     ``JAX_COMPILATION_CACHE_MAX_SIZE`` is set). A folder that cannot be created or written leaves
     the cache off with a one-line warning on stderr.
@@ -93,7 +98,7 @@ def enable_persistent_cache(path: str | None) -> str | None:
         return None
     jax.config.update("jax_compilation_cache_dir", path)
     if "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS" not in os.environ:
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_S)
     if "JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES" not in os.environ:
         jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
     if "JAX_COMPILATION_CACHE_MAX_SIZE" not in os.environ:

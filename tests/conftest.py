@@ -30,6 +30,9 @@ os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 if "JAX_COMPILATION_CACHE_DIR" not in os.environ:  # set once by the session's first process, inherited after
     os.environ["JAX_COMPILATION_CACHE_DIR"] = tempfile.mkdtemp(prefix="jaxrl-robot-test-xla-cache-")
     os.environ.setdefault("JAX_COMPILATION_CACHE_MAX_SIZE", str(4 << 30))
+    # JAX's own threshold (the CLI's is lower): only programs that took a second to compile are cached, so
+    # the folder stays small and the size limit's scan of it on every write stays cheap
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "1")
 _flags = os.environ.get("XLA_FLAGS", "")
 if (os.environ.get("JAX_PLATFORMS") == "cpu" or shutil.which("nvidia-smi") is None) and (
     "xla_backend_optimization_level" not in _flags

@@ -53,6 +53,7 @@ def test_a_second_process_takes_its_program_from_the_cache(tmp_path):
     the second finds it (the counts come from JAX's own monitoring events)."""
     env = cpu_env()
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
+    env["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0"  # the program is small: cache it however fast
     runs = []
     for _ in range(2):
         out = subprocess.run([sys.executable, "-c", _PROGRAM, str(tmp_path / "cache")], cwd=ROOT, env=env,
