@@ -332,6 +332,13 @@ def test_twin_critics_with_policy_delay_count_actor_and_target_updates():
     assert same(state.target_critic_params, start.critic_params)
     assert not same(state.critic_params, start.critic_params)
     assert np.isfinite(float(metrics["critic_loss"])) and np.isfinite(float(metrics["actor_loss"]))
+    assert float(metrics["per_nonfinite_td"]) == 0.0
+    # a critic that returns NaN: every TD error of a batch (8) is non-finite, logged, and kept out of the tree
+    poisoned = state.replace(critic_params=jax.tree.map(lambda x: x * jnp.nan, state.critic_params))
+    bad_state, bad = update(poisoned)
+    assert float(bad["per_nonfinite_td"]) == 8.0
+    assert np.isfinite(np.asarray(bad_state.replay.scalars)).all()
+    assert np.isfinite(np.asarray(bad_state.replay.tree.leaf_values)).all()
     for updates, actor_steps in ((4, 1), (6, 2)):
         state, _ = update(state)
         assert int(state.updates) == updates and int(state.actor_opt[0].count) == actor_steps
