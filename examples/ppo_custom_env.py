@@ -72,7 +72,7 @@ def config(total_steps: int) -> PPOConfig:
     """PPO settings for :class:`PointReach` (64 lanes × 16 steps per iteration, 2 × 64 networks)."""
     return PPOConfig(
         total_steps=total_steps, num_envs=64, unroll_length=16, minibatch_size=256, actor_updates=8,
-        critic_updates=8, actor_lr=1e-3, critic_lr=1e-3, gamma=0.95, sigma=(0.5,), actor_hidden=(64, 64),
+        critic_updates=8, actor_lr=1e-3, critic_lr=1e-3, gamma=0.95, actor_hidden=(64, 64),
         critic_hidden=(64, 64), batch_norm=False, episode_length=50,
     )  # fmt: skip
 

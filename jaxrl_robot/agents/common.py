@@ -85,7 +85,9 @@ def check_counts(config: Any, *names: str) -> None:
 
 @dataclass(frozen=True)
 class ActorCriticConfig:
-    """Hyper-parameters shared by the actor-critic agents (defaults: the thesis's arm settings).
+    """Hyper-parameters shared by the actor-critic agents (defaults: the thesis's arm settings, except
+    that a per-action field such as ``sigma`` defaults to one value, broadcast to any env's action size;
+    the arm's per-action values are set by its presets, ``train/presets.py``).
 
     ``num_envs`` lanes (the K workers) each collect ``unroll_length`` (N) steps per iteration;
     the actor is Gaussian (fixed or learned σ, optional batch-norm), the critic a plain MLP,
@@ -107,8 +109,12 @@ class ActorCriticConfig:
     """Adam learning rate of the critic (α_v)."""
     gamma: float = 0.9
     """Discount factor γ."""
-    sigma: tuple[float, ...] = (0.8, 0.8, 0.1)
-    """Policy standard deviation per action dimension (one value is broadcast)."""
+    sigma: tuple[float, ...] = (0.5,)
+    """Policy standard deviation in action units: one value (broadcast to the env's action size) or one
+    per action dimension. The default 0.5 suits any env with actions in [−1, 1]: it is fixed for the whole
+    run unless ``learn_std``, so it sits below the initial σ of policies that learn theirs (brax's PPO
+    ≈ 0.69 = softplus(0) + 0.001, Stable-Baselines3's 1) and within the thesis's fixed values (arm
+    (0.8, 0.8, 0.1), Table 5.2; unicycle (0.1, 0.01), Table 5.3), which the presets set per env."""
     learn_std: bool = False
     """Learn a state-independent log-std starting at log(sigma) instead of a fixed σ."""
     state_std: bool = False

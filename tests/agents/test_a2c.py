@@ -133,7 +133,7 @@ def test_gaussian_entropy_of_the_thesis_sigma():
     expected = float(np.sum(0.5 * np.log(2 * math.pi * math.e * sigma**2)))
     np.testing.assert_allclose(gaussian_entropy(jnp.log(f32(sigma))), expected, rtol=1e-6)
     # the actor with fixed σ reports it for every state
-    actor, _ = make_networks(A2CConfig(batch_norm=False), 3)
+    actor, _ = make_networks(A2CConfig(batch_norm=False, sigma=(0.8, 0.8, 0.1)), 3)
     _, log_std = jax.jit(lambda k, o: actor.apply(actor.init(k, o), o))(jax.random.PRNGKey(0), jnp.ones((2, 6)))
     np.testing.assert_allclose(gaussian_entropy(log_std), [expected, expected], rtol=1e-6)
 

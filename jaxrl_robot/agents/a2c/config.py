@@ -1,4 +1,5 @@
-"""A2C / A3C hyper-parameters (defaults: thesis Table 4.2, the arm; K = 4 workers, N = 8 transitions)."""
+"""A2C / A3C hyper-parameters (defaults: thesis Table 4.2, the arm; K = 4 workers, N = 8 transitions; σ is one
+value for any action size, the arm's (0.8, 0.8, 0.1) is set by its presets)."""
 
 from __future__ import annotations
 

@@ -104,7 +104,9 @@ class Acting(NamedTuple):
 
 
 def make_noise_for(config: DDPGConfig, action_size: int) -> Noise:
-    """The configured exploration noise (``config.noise``) for ``action_size`` dimensions."""
+    """The configured exploration noise (``config.noise``) for ``action_size`` dimensions (``ConfigError``
+    naming a noise field with neither 1 nor ``action_size`` values)."""
+    config.check_action_size(action_size)
     if config.noise == "ou":
         return make_noise("ou", action_size, mean=config.noise_mean, reversion=config.noise_reversion,
                           scale=config.noise_scale)

@@ -1,4 +1,4 @@
-"""DDPG hyper-parameters (defaults: thesis Table 3.2, the arm with HER)."""
+"""DDPG hyper-parameters (defaults: thesis Table 3.2, the arm with HER; the noise one value for any action size)."""
 
 from __future__ import annotations
 
@@ -100,11 +100,14 @@ class DDPGConfig:
     noise: str = "gaussian"
     """Exploration noise: 'gaussian' or 'ou' (Ornstein-Uhlenbeck, Eq. 3.8)."""
     noise_scale: tuple[float, ...] = (0.2,)
-    """σ of the Gaussian noise, or σ2 of the OU process (one value or one per action)."""
+    """σ of the Gaussian noise, or σ2 of the OU process, in action units: one value (broadcast to the env's
+    action size) or one per action.  The default 0.2 is the arm presets' Gaussian σ and suits any env
+    with actions in [−1, 1] (TD3's own is 0.1); per-action values such as the racing car's Table 6.1 are
+    set by the presets."""
     noise_mean: tuple[float, ...] = (0.0,)
-    """Mean of the noise (η of the OU process)."""
+    """Mean of the noise (η of the OU process): one value (broadcast) or one per action."""
     noise_reversion: tuple[float, ...] = (0.15,)
-    """σ1 of the OU process (reversion rate)."""
+    """σ1 of the OU process (reversion rate): one value (broadcast) or one per action."""
     actor_hidden: tuple[int, ...] = (100, 100, 100)
     """Hidden widths of the actor (arm: 3 x 100; tracking: 300-100)."""
     critic_hidden: tuple[int, ...] = (100, 100, 100)
@@ -303,6 +306,15 @@ class DDPGConfig:
             self._validate_workers()
         if self.pretrain != "none":
             self._validate_pretrain()
+        return self
+
+    def check_action_size(self, action_size: int) -> DDPGConfig:
+        """Raise ``ConfigError`` naming the first per-action noise field (``noise_scale``, ``noise_mean``;
+        ``noise_reversion`` with OU noise) that has neither 1 nor ``action_size`` values; return self."""
+        names = ("noise_scale", "noise_mean") + (("noise_reversion",) if self.noise == "ou" else ())
+        for name in names:
+            if len(getattr(self, name)) not in (1, action_size):
+                raise ConfigError(f"{name}={getattr(self, name)!r} must have 1 or action_size={action_size} values")
         return self
 
     @property

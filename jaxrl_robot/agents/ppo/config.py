@@ -1,4 +1,5 @@
-"""PPO hyper-parameters (defaults: thesis Table 5.2, the arm; K = 4 workers, N = 8, 5 updates on 32)."""
+"""PPO hyper-parameters (defaults: thesis Table 5.2, the arm; K = 4 workers, N = 8, 5 updates on 32; σ is one
+value for any action size, the arm's (0.8, 0.8, 0.1) is set by its presets)."""
 
 from __future__ import annotations
 
