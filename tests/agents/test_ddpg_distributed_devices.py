@@ -5,7 +5,7 @@ their own noise scales, whole episodes with HER (``future``), prioritised replay
 normalisation on the toy goal env, every lane acting uniformly at random for the first 3 cycles
 (``random_start`` until ``learning_starts`` 360 rows are stored); each device count with its default lane map of
 ``jaxrl_robot.parallel`` (``shard_map`` on one device, ``vmap`` on several; both implementations
-run the single learner in ``test_ddpg_devices.py``).
+run the single learner in ``test_ddpg_devices.py``, one config each).
 The shared replay (rows, slots, priorities, β), the global networks, the targets, every
 collector's copy and the metrics must agree up to float summation order; the gradient mean of
 one worker per device is the mean over 4 workers on one.
