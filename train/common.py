@@ -651,7 +651,7 @@ def _run_locked(spec: RunSpec, run_dir: str) -> dict[str, Any]:
     _say(f"run directory: {run_dir}")
 
     t0 = time.perf_counter()
-    spec_startup_s = process_age_s()
+    startup_s = process_age_s()
     seeds = [spec.seed + i for i in range(spec.seeds)]
     several = len(seeds) > 1
     program = SeedProgram.of(trainer, len(seeds), spec.seed_map)
@@ -732,7 +732,7 @@ def _run_locked(spec: RunSpec, run_dir: str) -> dict[str, Any]:
         "finished": chunk >= trainer.num_updates,
         "env_steps": chunk * steps_per,
         "compile_s": compile_s,
-        "startup_s": spec_startup_s,
+        "startup_s": startup_s,
         "train_s": train_s,
     }
     for logger, d in zip(loggers, seed_dirs, strict=False):  # no loggers off process 0
