@@ -28,6 +28,7 @@ from typing import Any
 import jax
 
 from benchmarks import provenance
+from benchmarks import seeds as bench_seeds
 from benchmarks.arguments import nonnegative
 from jaxrl_robot.logging import read_csv
 from train import a2c as a2c_cli
@@ -173,7 +174,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--rebuild", action="store_true", help="only re-derive the saved rows from their run directories")
     provenance.add_args(p)
     args = p.parse_args(argv)
-    prov = provenance.record("benchmarks.a2c_arm7", argv, seeds=args.seeds, commit=args.commit,
+    purposes = "/".join(sorted({bench_seeds.purpose_of(k) for k in args.seeds}))
+    prov = provenance.record("benchmarks.a2c_arm7", argv, allow_dirty=args.allow_dirty,
+                             seeds=bench_seeds.record(purposes, args.seeds, "train.a2c/a3c --seed k"),
                              **({"note": args.note} if args.note else {}))  # fmt: skip
     os.makedirs(args.runs, exist_ok=True)
     os.makedirs(args.out, exist_ok=True)

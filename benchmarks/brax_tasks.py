@@ -68,7 +68,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from benchmarks import provenance
+from benchmarks import provenance, stats
+from benchmarks import seeds as bench_seeds
 from benchmarks.arguments import at_least, nonnegative, positive
 from benchmarks.tracking_report import pairs
 from benchmarks.train_throughput import RESULTS, device_label
@@ -201,8 +202,10 @@ def eval_points(num_updates: int, evals: int = 10) -> list[int]:
 def ours(env: Any, task: str, row: dict[str, float], steps: int, seeds: int, eval_episodes: int,
          seed_map: str = "loop", algo: str = "ppo", mode: str = "stochastic",
          overrides: dict[str, Any] | None = None, evals: int = 10,
-         done: Callable[[dict[str, Any]], None] | None = None, devices: int = 1) -> dict[str, Any]:  # fmt: skip
-    """Train our ``algo`` on ``seeds`` keys, one vmapped program (``seed_map='vmap'``) or one compiled
+         done: Callable[[dict[str, Any]], None] | None = None, devices: int = 1,
+         seed_ids: list[int] | None = None) -> dict[str, Any]:  # fmt: skip
+    """Train our ``algo`` on ``seeds`` seeds (``seed_ids``, default 0 …: :mod:`benchmarks.seeds`' keys), one
+    vmapped program (``seed_map='vmap'``) or one compiled
     program called per key (``'loop'``; each seed's lanes spread over ``devices`` devices, 0: all),
     evaluating at the ``evals`` :func:`eval_points` (as brax does) in
     ``mode`` where the trainer can sample, and with the mean action; returns, evaluation curves,
@@ -282,7 +285,8 @@ def ours(env: Any, task: str, row: dict[str, float], steps: int, seeds: int, eva
             on_eval(np.stack(curve, -1), np.stack(curve_mean, -1), np.asarray(buf), p)
         return np.stack(curve, -1), np.stack(curve_mean, -1), np.asarray(buf)
 
-    keys, eval_keys = jax.random.split(jax.random.PRNGKey(0), seeds), jax.random.split(jax.random.PRNGKey(1), seeds)
+    ids = list(seed_ids or range(seeds))
+    keys, eval_keys = bench_seeds.keys(ids), bench_seeds.eval_keys(ids)
     t0 = time.perf_counter()
     if seed_map == "vmap":
         curves, curves_mean, per_chunk = run(jax.jit(jax.vmap(trainer.init)),
@@ -333,16 +337,19 @@ def theirs(env: Any, row: dict[str, float], steps: int, seeds: int, peer: str = 
 
 
 def summary(runs: list[dict[str, Any]]) -> dict[str, Any]:
-    """The record of brax's runs (one per seed) as the report reads it."""
+    """The record of brax's runs (one per seed) as the report reads it: a return per seed (``seeds`` of them),
+    so that a comparison states each side's seeds and its noise (:func:`benchmarks.stats.compare`)."""
     walls = [r["wall_s"] for r in runs]
-    return {"returns": [r["final_return"] for r in runs], "wall_s": float(sum(walls)),
+    return {"returns": [r["final_return"] for r in runs], "seeds": len(runs), "wall_s": float(sum(walls)),
             "wall_per_seed_s": float(np.mean(walls)), "env_steps": runs[0]["env_steps"],
             "env_steps_per_s": sum(r["env_steps"] for r in runs) / sum(walls),
             "curve_steps": runs[0]["curve_steps"], "curves": [r["curve"] for r in runs]}  # fmt: skip
 
 
 def return_ratio(ours: float, brax: float) -> float:
-    """Ours over brax's, or brax's over ours where brax's is negative (a cost): above 1 where ours is ahead."""
+    """Ours over brax's mean, or brax's over ours where brax's is negative (a cost): above 1 where our mean is
+    higher. A ratio of means says nothing of the seeds' spread: whether ours is ahead beyond it is
+    :func:`benchmarks.stats.compare`'s verdict, which the report gives beside."""
     if not brax or not ours:
         return float("nan")
     return ours / brax if brax > 0 else brax / ours
@@ -357,14 +364,18 @@ def to_markdown(result: dict[str, Any]) -> str:
            f"{result['brax_seeds']} of brax's (one after another); the same env steps and settings "
            f"(`train.presets.{table}`). Return: each side's final evaluation on fresh episodes (ours: "
            f"{result['eval_episodes']} episodes; brax: 128) in the mode its column names — sampled actions "
-           "(brax's default) or the mean action; ours also with the mean action. Wall: compilation included. "
-           "Bold: at the goal (our return ≥ brax's in the same mode; our wall per seed ≤ brax's)."
+           "(brax's default) or the mean action; ours also with the mean action; ± the std over seeds. Wall: "
+           "compilation included. Ours against brax's: the difference of the means with its 95 % confidence "
+           "interval (Welch's t) and Mann–Whitney's two-sided p, seeds per side; **ahead** / behind only where the "
+           "interval excludes 0, else level (`benchmarks/stats.py`). Bold: ahead in the same mode; our wall per "
+           "seed ≤ brax's."
            + (f" Merged from {len(result['sources'])} invocations (`--merge`; each one's provenance below)."
               if result.get("merged_from") else ""), "",
            "| task | env steps | brax return | our return, same mode | our return, mean action "
+           "| ours − brax, same mode (95 % CI; Welch), Mann–Whitney p, seeds ours vs brax "
            "| brax wall per seed s | our wall per seed s | brax env steps/s | our env steps/s "
-           "| return ratio (> 1: ours ahead) |",
-           "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
+           "| ratio of the means |",
+           "|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|"]  # fmt: skip
     words = {"stochastic": "sampled", "deterministic": "mean action"}
     for t in result["tasks"]:
         b, o = t["brax"], t["ours"]
@@ -372,7 +383,10 @@ def to_markdown(result: dict[str, Any]) -> str:
         same, mean = our_returns(o, mode), our_returns(o, "deterministic")
         rb, ro = np.mean(b["returns"]), np.mean(same) if same else float("nan")
         whole = not (b.get("cut") or o.get("cut"))  # a side cut short is not compared
-        won, fast = whole and ro >= rb, whole and o["wall_per_seed_s"] <= b["wall_per_seed_s"]
+        versus = stats.compare(same or [], b["returns"]) if whole else None
+        won, fast = whole and versus["verdict"] == "ahead", whole and o["wall_per_seed_s"] <= b["wall_per_seed_s"]
+        verdict = stats.words(versus) if versus else "not compared (a side cut short)"
+        verdict = verdict.replace("ahead:", "**ahead**:", 1)
         cell = f"{ro:.1f} ± {np.std(same):.1f}" if same else "not measured"
         cut = f" (cut at {o['env_steps']:,} steps)" if o.get("cut") else ""
         cell += cut
@@ -383,7 +397,7 @@ def to_markdown(result: dict[str, Any]) -> str:
         seeds_done += f" (cut at {b['env_steps']:,} steps)" if b.get("cut") else ""
         mode_word = "" if np.isnan(rb) else f" ({words[mode]})"
         out.append(f"| {t['task']} | {o['env_steps']:,} | {rb:.1f} ± {np.std(b['returns']):.1f}{mode_word}"
-                   f"{seeds_done} | {'**' + cell + '**' if won else cell} | {mean_cell} "
+                   f"{seeds_done} | {'**' + cell + '**' if won else cell} | {mean_cell} | {verdict} "
                    f"| {b['wall_per_seed_s']:.0f} | {'**' + wall + '**' if fast else wall} "
                    f"| {b['env_steps_per_s']:,.0f} | {o['env_steps_per_s']:,.0f} "
                    f"| {return_ratio(ro, rb):.2f} |")  # fmt: skip
@@ -424,9 +438,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--tasks", nargs="+", default=None, metavar="TASK",
                    help=f"PPO: {', '.join(BRAX_PPO)} (default: all); TD3 / DDPG: {', '.join(BRAX_SAC)} (default: all)")
     p.add_argument("--seeds", type=positive, default=3)
+    p.add_argument("--purpose", default="tune", choices=bench_seeds.PURPOSES,
+                   help="both sides' seeds: the tuning range or the report range, which no tuning run draws "
+                   "(benchmarks.seeds)")  # fmt: skip
     p.add_argument("--brax-seeds", type=nonnegative, default=0, help="brax's seeds (0: --seeds)")
     p.add_argument("--brax-first-seed", type=nonnegative, default=0,
-                   help="brax's first seed (its seeds split over invocations, e.g. two GPUs, then --merge)")
+                   help="brax's first seed in the purpose's range (its seeds split over invocations, e.g. two GPUs, "
+                   "then --merge)")  # fmt: skip
     p.add_argument("--steps", type=nonnegative, default=0, help="env steps per seed (0: brax's budget of the task)")
     p.add_argument("--backend", default="mjx", help="brax physics backend (mjx, generalized, positional, spring)")
     p.add_argument("--eval-episodes", type=positive, default=128)
@@ -487,9 +505,15 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     from brax import envs as brax_envs
 
     brax_seeds = args.brax_seeds or args.seeds
-    prov = provenance.record("benchmarks.brax_tasks", argv, seeds=f"ours: split(PRNGKey(0), {args.seeds}); brax: "
-                             f"seed {args.brax_first_seed}..{args.brax_first_seed + brax_seeds - 1}",
-                             commit=args.commit)  # fmt: skip
+    try:
+        our_ids = bench_seeds.seed_ids(args.purpose, args.seeds)
+        brax_ids = bench_seeds.seed_ids(args.purpose, brax_seeds, args.brax_first_seed)
+    except ValueError as e:
+        p.error(f"--seeds/--brax-first-seed: {e}")
+    prov = provenance.record("benchmarks.brax_tasks", argv, allow_dirty=args.allow_dirty,
+                             seeds=bench_seeds.record(args.purpose, our_ids, "ours: training key PRNGKey(seed), "
+                                                      f"evaluation key fold_in(PRNGKey(seed), EVAL_KEY_OFFSET); brax: "
+                                                      f"its seed argument {brax_ids[0]}..{brax_ids[-1]}"))  # fmt: skip
     stem = stem_of(args.out, device_label(), args.algo, args.label)
     result = {"benchmark": "brax_tasks", "algo": args.algo, "provenance": prov, "device": device_label(),
               "backend": args.backend, **({"note": args.note} if args.note else {}),
@@ -514,7 +538,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 
             row["ours"] = ours(env, task, settings, our_steps, args.seeds, args.eval_episodes, args.seed_map,
                                args.algo, args.eval_mode, overrides, args.evals, ours_so_far,
-                               args.devices)  # fmt: skip
+                               args.devices, our_ids)  # fmt: skip
             print(task, "ours", [round(r, 1) for r in row["ours"]["returns"]], f"{row['ours']['wall_s']:.0f} s",
                   flush=True)  # fmt: skip
         if not args.no_brax:
@@ -525,7 +549,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                 write(stem, result)
 
             theirs(env, settings, steps, brax_seeds, ALGOS[args.algo][1], partial, args.eval_mode,
-                   args.brax_first_seed, args.evals)
+                   brax_ids[0], args.evals)
             print(task, "brax", [round(r, 1) for r in row["brax"]["returns"]], f"{row['brax']['wall_s']:.0f} s",
                   flush=True)  # fmt: skip
         write(stem, result, echo=task == args.tasks[-1])
@@ -603,7 +627,7 @@ def merge(paths: list[str], out: str, argv: list[str] | None = None, label: str 
     named = (ran_ours or parts)[-1]  # the file is named after the device our side last ran on
     stem = stem_of(out, named["device"], first.get("algo", "ppo"), label)
     prov = provenance.record("benchmarks.brax_tasks", argv, device_info=named["provenance"]["device"],
-                             seeds="as in the invocations above",
+                             seeds="as in the invocations above", allow_dirty=True,  # merges figures, measures none
                              note="this file merges the results files of the invocations above")  # fmt: skip
     first = {**{k: v for k, v in first.items() if k != "note"}, "seed_map": (ran_ours or parts)[0]["seed_map"],
              "device": named["device"]}

@@ -202,7 +202,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--out", default=RESULTS)
     args = p.parse_args(argv)
     baseline = load_baseline(args.baseline) if args.baseline else None
-    prov = provenance.record("benchmarks.ddpg_throughput", argv, seeds=SEEDS, commit=args.commit)
+    prov = provenance.record("benchmarks.ddpg_throughput", argv, seeds=SEEDS, allow_dirty=args.allow_dirty)
     result = {
         "benchmark": "ddpg_throughput", "provenance": prov, "device": device_label(), "devices": jax.device_count(),
         "env": args.env, "command": prov["command"], "commit": prov["commit"], "jax": jax.__version__,

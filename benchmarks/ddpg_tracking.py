@@ -23,11 +23,11 @@ names the variant.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from typing import Any
 
-import jax
-
 import envs_mjx
+from benchmarks import seeds as bench_seeds
 from benchmarks import tracking_report
 from benchmarks.tracking_report import GOAL, THESIS, pairs
 from envs_mjx import tracking
@@ -68,7 +68,7 @@ def run_case(reference: str, method: str, args: argparse.Namespace) -> dict[str,
     def test(state):
         return tracking.rollout(env, trainer.policy(state))
 
-    keys = jax.random.split(jax.random.PRNGKey(args.seed), args.seeds)
+    keys = bench_seeds.keys(args.seed_ids)
     result, metrics, compile_s, train_s = tracking_report.train_seeds(make_train(config, env), test, keys, True)
     fields = ("total_steps", "num_envs", "batch_size", "gamma", "twin_critics", "target_noise", "policy_delay",
               "sync_workers", "collect_workers", "fetch_every")
@@ -77,6 +77,7 @@ def run_case(reference: str, method: str, args: argparse.Namespace) -> dict[str,
         reference=reference, method=method, label=args.label,
         config={**{f: getattr(config, f) for f in fields}, "distributed": config.distributed,
                 "set": args.set, "env_config": args.env_config},
+        algo_config=dataclasses.asdict(config), env_config=dataclasses.asdict(env.config),
         seeds=args.seeds, seeds_vmapped=True,
         env_steps=int(trainer.env_steps_per_update * trainer.num_updates),
         updates=int(metrics["updates"][0, -1]),

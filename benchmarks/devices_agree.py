@@ -93,7 +93,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     provenance.add_args(p)
     args = p.parse_args(argv)
     prov = provenance.record("benchmarks.devices_agree", argv, seeds="PRNGKey(0) for every case (fixed in the code)",
-                             commit=args.commit)  # fmt: skip
+                             allow_dirty=args.allow_dirty)  # fmt: skip
     rows = []
     for case in args.cases:
         try:

@@ -246,7 +246,7 @@ def main(argv: list[str] | None = None) -> None:
     provenance.add_args(parser)
     args = parser.parse_args(argv)
     seeds = "fixed in the code: states from PRNGKey(0), actions from PRNGKey(1), every case"
-    prov = provenance.record("benchmarks.env_throughput", argv, seeds=seeds, commit=args.commit)
+    prov = provenance.record("benchmarks.env_throughput", argv, seeds=seeds, allow_dirty=args.allow_dirty)
 
     cases = {c.label: c for c in CASES}
     unknown = [c for c in args.cases if c not in cases]

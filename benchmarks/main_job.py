@@ -1,6 +1,6 @@
 """The main job as a user runs it, timed from outside: ``python -m train.ppo --env arm7`` in fresh processes.
 
-    python -m benchmarks.main_job [--seeds 100 101 102] [--devices 1] [-- <train.ppo flags>]
+    python -m benchmarks.main_job [--seeds 1000000 1000001 1000002] [--devices 1] [-- <train.ppo flags>]
 
 The first process compiles into an empty persistent-cache folder (a cold start); the same seed runs
 again from that folder (a warm start: every program found in the cache, the same result), then the
@@ -9,7 +9,8 @@ other seeds, warm. For each process: the wall time of the whole process, its ``e
 env and trainer; ``compile_s``: the first chunk, compilation included; ``train_s``; ``eval_s``), the
 programs compiled and the cache's hits, and success within 5 / 2 / 1 cm.
 
-Seeds 100 and up are report seeds: no preset or setting was chosen on them. Results go to
+The default seeds are the first three of the report range (:mod:`benchmarks.seeds`), on which no preset
+or setting can have been chosen; the results file records which range each seed is in. Results go to
 ``benchmarks/results/<device>-main_job[-<label>].{md,json}`` with the provenance of
 :mod:`benchmarks.provenance`; the device is read in a child process so that this one never holds
 the GPU.
@@ -28,6 +29,7 @@ import time
 from typing import Any
 
 from benchmarks import provenance
+from benchmarks import seeds as bench_seeds
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 FIELDS = ("startup_s", "compile_s", "train_s", "eval_s", "wall_s")
@@ -83,14 +85,19 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     ours, flags = (argv[: argv.index("--")], argv[argv.index("--") + 1 :]) if "--" in argv else (argv, [])
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--seeds", type=int, nargs="+", default=[100, 101, 102], help="report seeds (first: cold and warm)")
+    p.add_argument("--seeds", type=int, nargs="+", default=bench_seeds.seed_ids("report", 3),
+                   help="seeds (first: cold and warm; default: the first three of the report range, "
+                   "benchmarks.seeds)")
     p.add_argument("--devices", type=int, default=0, help="GPUs the processes see (CUDA_VISIBLE_DEVICES; 0: all)")
     p.add_argument("--label", default="", help="suffix of the results file")
     p.add_argument("--out", default=RESULTS)
+    provenance.add_args(p)
     args = p.parse_args(ours)
     dev = device_info(args.devices or None)
-    prov = provenance.record("benchmarks.main_job", argv, seeds=args.seeds, device_info=dev,
-                             note="seeds 100 and up were never used to choose a setting")  # fmt: skip
+    purposes = sorted({bench_seeds.purpose_of(k) for k in args.seeds})
+    prov = provenance.record("benchmarks.main_job", argv, allow_dirty=args.allow_dirty, device_info=dev,
+                             seeds=bench_seeds.record("/".join(purposes), args.seeds,
+                                                      "train.ppo --seed k"))  # fmt: skip
     rows = []
     with tempfile.TemporaryDirectory(prefix="main-job-") as tmp:
         cache, out = os.path.join(tmp, "xla"), os.path.join(tmp, "runs")

@@ -99,7 +99,8 @@ def main() -> None:
         child(a.child, a.lanes, a.steps)
         return
     # jax is not started here (the variants each start it in a process of their own): they report the device
-    prov = provenance.record("benchmarks.multigpu_repro", seeds="PRNGKey(0) (fixed in the code)", commit=a.commit,
+    prov = provenance.record("benchmarks.multigpu_repro", seeds="PRNGKey(0) (fixed in the code)",
+                             allow_dirty=a.allow_dirty,
                              device_info={"name": "not reported by any variant", "platform": "?"})  # fmt: skip
     rows = []
     for v in a.variants.split(","):

@@ -80,7 +80,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     provenance.add_args(p)
     args = p.parse_args(argv)
     ddpg_argv = list(args.ddpg or DEFAULT_DDPG)
-    prov = provenance.record("benchmarks.per_trees", argv, seeds="PRNGKey(0) (fixed in the code)", commit=args.commit)
+    prov = provenance.record("benchmarks.per_trees", argv, seeds="PRNGKey(0) (fixed in the code)",
+                             allow_dirty=args.allow_dirty)
     result = {"benchmark": "per_trees", "provenance": prov, "device": device_label(), "ddpg_argv": ddpg_argv,
               "repeats": args.repeats, "runs": []}  # fmt: skip
     stem = f"{args.out}/{device_label()}-per_trees"

@@ -17,11 +17,13 @@ for every run; ``--label`` names the variant.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from typing import Any
 
 import jax
 
 import envs_mjx
+from benchmarks import seeds as bench_seeds
 from benchmarks import tracking_report
 from benchmarks.tracking_report import GOAL, THESIS, pairs
 from envs_mjx import tracking
@@ -51,7 +53,7 @@ def run_case(trajectory: str, method: str, args: argparse.Namespace) -> dict[str
         pol = as_recurrent(trainer.policy(state))
         return tracking.rollout(env, pol.step, None, pol.carry)
 
-    keys = jax.random.split(jax.random.PRNGKey(args.seed), args.seeds)
+    keys = bench_seeds.keys(args.seed_ids)
     vmapped = seeds_vmapped(args.seed_map, config.policy)
     result, metrics, compile_s, train_s = tracking_report.train_seeds(make_train(config, env), test, keys, vmapped)
     return tracking_report.summarise(
@@ -59,6 +61,7 @@ def run_case(trajectory: str, method: str, args: argparse.Namespace) -> dict[str
         reference=trajectory, method=method, label=args.label,
         config={"total_steps": config.total_steps, "num_envs": config.num_envs, "policy": config.policy,
                 "pretrain": config.pretrain, "gamma": config.gamma, "set": args.set, "env_config": args.env_config},
+        algo_config=dataclasses.asdict(config), env_config=dataclasses.asdict(env.config),
         seeds=args.seeds, seeds_vmapped=vmapped,
         env_steps=int(trainer.env_steps_per_update * trainer.num_updates),
         compile_s=compile_s, train_s=train_s, thesis=THESIS[(trajectory, method)], goal=GOAL[trajectory],

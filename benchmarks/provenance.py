@@ -1,16 +1,28 @@
-"""Where a results file came from: the command as run, the commit (and whether the tree was clean),
-the device, the seeds, the wall time and the date — one record, written into the ``.json`` and the
-``.md`` of every benchmark (:func:`write`).
+"""Where a results file came from: the command as run, the commit and whether the tree held edits no
+commit holds, the device, the seeds, the wall time and the date — one record, written into the
+``.json`` and the ``.md`` of every benchmark (:func:`write`).
 
-    prov = provenance.record("benchmarks.racing", argv, seeds="3 keys split from PRNGKey(0)",
-                             commit=args.commit)
+    prov = provenance.record("benchmarks.racing", argv, seeds=..., allow_dirty=args.allow_dirty)
     ...  # the run
     provenance.write(stem, {"provenance": prov, **result}, markdown)
 
-A run from a tree with uncommitted edits is recorded as such (``dirty: true`` and the edited
-files, ``diff_sha1`` of ``git diff HEAD``): its figures come from code no commit holds.  Where the
-benchmark ran without a git checkout (a copy of the working tree on another machine) the commit
-is the one given with ``--commit`` and the tree's state is ``null``: unknown, and said so.
+The tool takes the tree's state itself, never from the command line (:func:`git_state`):
+
+* a stamp, ``.provenance.json`` at the repository's root, written by ``python -m benchmarks.provenance
+  stamp`` in the git checkout before the tree is copied to another machine (a copy whose ``.git`` may be
+  stale); it holds the commit, the dirty flag, the diff and the SHA-1 of every file of the tree. It is
+  used where it is present and every file of the tree still hashes as it says (ignored by git: carry it
+  with the copy);
+* else git (``git rev-parse HEAD``, ``git status``, ``git diff HEAD``) in the checkout this code is in.
+
+Files the benchmarks write (``benchmarks/results/``) are outputs, not code: they count neither for the
+dirty flag nor for the tree's hashes. A run from a tree with uncommitted edits, or whose state cannot be
+read, is refused (:func:`require_clean`) unless ``--allow-dirty`` is given; then its record holds the
+edited files, ``diff_sha1`` and the diff itself (``git diff HEAD`` and the new files, up to
+:data:`MAX_DIFF_CHARS`).
+
+``python -m benchmarks.provenance check`` prints what a run would record now; ``audit`` lists the results
+files whose provenance does not verify (:func:`audit`).
 
 The run directories behind a results file (their small ``eval.json`` and ``config.json``) are kept
 under ``<results>/runs/<results file>/`` by :func:`keep_run`.
@@ -19,6 +31,7 @@ under ``<results>/runs/<results file>/`` by :func:`keep_run`.
 from __future__ import annotations
 
 import argparse
+import glob
 import hashlib
 import json
 import os
@@ -32,14 +45,24 @@ from collections.abc import Sequence
 from typing import Any
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-RUN_FILES = ("eval.json", "config.json")
+RUN_FILES = ("eval.json", "config.json", "provenance.json")
 """The files of a run directory that :func:`keep_run` copies beside the results."""
 MAX_KEPT_BYTES = 100_000
+STAMP_NAME = ".provenance.json"
+"""The stamp's file name at the repository's root (ignored by git)."""
+OUTPUTS = ("benchmarks/results/",)
+"""Path prefixes the benchmarks write: outputs, not code (not in the dirty flag, the diff or the tree's hashes)."""
+MAX_DIFF_CHARS = 200_000
+NOT_RESULTS = ("claims.json",)
+"""Files of the results folder that are not results (the index of the figures the READMEs quote)."""
+"""The most characters of a dirty tree's diff kept in a record (its SHA-1 is of the whole)."""
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
-    """``--commit``: the commit to record where the benchmark runs without a git checkout."""
-    p.add_argument("--commit", default="", help="commit to record when no git checkout is at hand (default: HEAD)")
+    """``--allow-dirty``: run from a tree with uncommitted edits (or of unknown state), recording its diff."""
+    p.add_argument("--allow-dirty", action="store_true",
+                   help="run although the tree has uncommitted edits or its state cannot be read; the record "
+                   "then holds the edited files and the diff (refused otherwise)")  # fmt: skip
 
 
 def command(module: str, argv: Sequence[str] | None = None) -> str:
@@ -55,26 +78,139 @@ def _git(*args: str, cwd: str) -> str | None:
     return out.stdout if out.returncode == 0 else None
 
 
-def git_state(cwd: str | None = None, commit: str = "") -> dict[str, Any]:
-    """``commit`` (full hash), ``dirty`` (True, False, or None: unknown), ``dirty_files`` (``git status
-    --porcelain`` lines, at most 20), ``dirty_count`` (all of them), ``diff_sha1`` (of ``git diff HEAD``)
-    and ``commit_source`` of the checkout at ``cwd`` (default :data:`REPO`, the checkout this code is in).
+def _is_output(path: str) -> bool:
+    return path == STAMP_NAME or any(path.startswith(o) for o in OUTPUTS)
 
-    ``commit`` (given by the caller, e.g. ``--commit``): recorded as given; the tree's state is read
-    from ``cwd`` only where its HEAD is that commit, else it is unknown."""
-    cwd = cwd or REPO
+
+def _code_pathspec() -> list[str]:
+    return ["--", ".", *(f":(exclude){o.rstrip('/')}" for o in OUTPUTS), f":(exclude){STAMP_NAME}"]
+
+
+def tree_files(cwd: str) -> list[str] | None:
+    """The code's files at ``cwd``: git's tracked and not-ignored untracked files that exist, outputs
+    (:data:`OUTPUTS`) apart, sorted; None where git cannot list them."""
+    out = _git("ls-files", "-z", "--cached", "--others", "--exclude-standard", cwd=cwd)
+    if out is None:
+        return None
+    names = {n for n in out.split("\0") if n and not _is_output(n)}
+    return sorted(n for n in names if os.path.isfile(os.path.join(cwd, n)))
+
+
+def file_hashes(cwd: str, names: Sequence[str]) -> dict[str, str]:
+    """``{path: SHA-1 of its bytes}`` of ``names`` under ``cwd`` (``"missing"`` for a file not there)."""
+    out = {}
+    for name in names:
+        try:
+            with open(os.path.join(cwd, name), "rb") as f:
+                out[name] = hashlib.sha1(f.read()).hexdigest()
+        except OSError:
+            out[name] = "missing"
+    return out
+
+
+def tree_sha1(hashes: dict[str, str]) -> str:
+    """One SHA-1 of a tree's ``{path: file SHA-1}`` (order-free)."""
+    return hashlib.sha1("".join(f"{k}\0{v}\n" for k, v in sorted(hashes.items())).encode()).hexdigest()
+
+
+def _untracked_diff(cwd: str) -> str:
+    """The new (untracked, not ignored) code files as a diff of their whole text."""
+    out = []
+    listed = _git("ls-files", "-z", "--others", "--exclude-standard", *_code_pathspec(), cwd=cwd) or ""
+    for name in listed.split("\0"):
+        if name and os.path.isfile(os.path.join(cwd, name)):
+            with open(os.path.join(cwd, name), "rb") as f:
+                text = f.read().decode("utf-8", "replace")
+            out.append(f"--- /dev/null\n+++ b/{name}\n" + "".join(f"+{line}\n" for line in text.splitlines()))
+    return "".join(out)
+
+
+def from_git(cwd: str) -> dict[str, Any]:
+    """The tree's state from git at ``cwd``: ``commit`` (full hash, ``"unknown"`` without a checkout),
+    ``dirty`` (True, False, or None: unknown), ``dirty_files`` (``git status --porcelain`` lines of code,
+    at most 20), ``dirty_count``, ``diff_sha1`` and ``diff`` (of the code's edits and new files; None when
+    clean), ``commit_source``."""
     head = (_git("rev-parse", "HEAD", cwd=cwd) or "").strip()
-    if commit and not head.startswith(commit):
-        return {"commit": commit, "dirty": None, "dirty_files": [], "diff_sha1": None,
-                "commit_source": "given with --commit; the tree it ran from was not checked"}  # fmt: skip
     if not head:
-        return {"commit": "unknown", "dirty": None, "dirty_files": [], "diff_sha1": None,
-                "commit_source": "no git checkout where it ran and no --commit"}  # fmt: skip
-    status = [line for line in (_git("status", "--porcelain", cwd=cwd) or "").splitlines() if line.strip()]
-    diff = _git("diff", "HEAD", cwd=cwd) or ""
+        return {"commit": "unknown", "dirty": None, "dirty_files": [], "dirty_count": 0, "diff_sha1": None,
+                "diff": None, "commit_source": "no git checkout where it ran and no matching stamp"}  # fmt: skip
+    status = (_git("status", "--porcelain", *_code_pathspec(), cwd=cwd) or "").splitlines()
+    status = [line for line in status if line.strip()]
+    diff = ((_git("diff", "HEAD", *_code_pathspec(), cwd=cwd) or "") + _untracked_diff(cwd)) if status else ""
     return {"commit": head, "dirty": bool(status), "dirty_files": status[:20], "dirty_count": len(status),
             "diff_sha1": hashlib.sha1(diff.encode()).hexdigest() if status else None,
-            "commit_source": "git rev-parse HEAD"}  # fmt: skip
+            "diff": diff or None, "commit_source": "git rev-parse HEAD"}  # fmt: skip
+
+
+def read_stamp(cwd: str) -> dict[str, Any] | None:
+    """The stamp at ``cwd`` (None where there is none, or it does not read as one)."""
+    try:
+        with open(os.path.join(cwd, STAMP_NAME)) as f:
+            stamp = json.load(f)
+    except (OSError, ValueError):
+        return None
+    return stamp if isinstance(stamp, dict) and isinstance(stamp.get("files"), dict) else None
+
+
+def stamp_differences(stamp: dict[str, Any], cwd: str) -> list[str]:
+    """The files whose bytes differ from ``stamp``'s (added, removed or changed since), sorted; [] when
+    the tree is the stamped one. Where git cannot list the tree, the stamp's own files are compared."""
+    names = tree_files(cwd)
+    listed = set(stamp["files"]) | set(names if names is not None else ())
+    now = file_hashes(cwd, sorted(listed))
+    return sorted(n for n in listed if now[n] != stamp["files"].get(n, "missing"))
+
+
+def write_stamp(cwd: str | None = None) -> dict[str, Any]:
+    """Write the stamp of the checkout at ``cwd`` (default :data:`REPO`) from git: its state
+    (:func:`from_git`), the SHA-1 of every file of the code and the time; returns it."""
+    cwd = cwd or REPO
+    state = from_git(cwd)
+    names = tree_files(cwd)
+    if state["commit"] == "unknown" or names is None:
+        raise SystemExit(f"error: {cwd} is not a git checkout; stamp the tree where its .git is")
+    hashes = file_hashes(cwd, names)
+    stamp = {**state, "commit_source": "git rev-parse HEAD where the tree was stamped", "tree_sha1": tree_sha1(hashes),
+             "stamped": time.strftime("%Y-%m-%d %H:%M:%S %z"), "host": platform.node(), "files": hashes}  # fmt: skip
+    with open(os.path.join(cwd, STAMP_NAME), "w") as f:
+        json.dump(stamp, f, indent=1)
+    return stamp
+
+
+def git_state(cwd: str | None = None) -> dict[str, Any]:
+    """The state of the tree at ``cwd`` (default :data:`REPO`): from its stamp where every file still
+    matches it, else from git (:func:`from_git`); ``tree_sha1`` of the code's files either way (None
+    where git cannot list them). A stamp that no longer matches is named in ``stamp_note``."""
+    cwd = cwd or REPO
+    stamp = read_stamp(cwd)
+    differ = stamp_differences(stamp, cwd) if stamp else []
+    if stamp and not differ:
+        keep = ("commit", "dirty", "dirty_files", "dirty_count", "diff_sha1", "diff", "tree_sha1")
+        return {**{k: stamp.get(k) for k in keep},
+                "commit_source": f"stamp {STAMP_NAME} of {stamp.get('stamped', '?')} (every file matches it)"}
+    state = from_git(cwd)
+    names = tree_files(cwd)
+    state["tree_sha1"] = tree_sha1(file_hashes(cwd, names)) if names is not None else None
+    if stamp:
+        more = f" and {len(differ) - 3} more" if len(differ) > 3 else ""
+        state["stamp_note"] = f"{STAMP_NAME} does not match the tree ({', '.join(differ[:3])}{more} differ): not used"
+    return state
+
+
+def require_clean(state: dict[str, Any], allow_dirty: bool) -> None:
+    """Refuse (``SystemExit`` with one line) a tree with uncommitted edits or of unknown state, unless
+    ``allow_dirty``."""
+    if allow_dirty or state["dirty"] is False:
+        return
+    if state["dirty"] is None:
+        note = f"; {state['stamp_note']}" if state.get("stamp_note") else ""
+        raise SystemExit(f"error: the tree's state cannot be read ({state['commit_source']}{note}); run `python -m "
+                         "benchmarks.provenance stamp` in the checkout and copy .provenance.json with the tree, "
+                         "or pass --allow-dirty to record the run as unverified")  # fmt: skip
+    files = ", ".join(line[3:] for line in state["dirty_files"][:5])
+    more = state.get("dirty_count", 0) - 5
+    raise SystemExit(f"error: the tree has uncommitted edits ({files}{f' and {more} more' if more > 0 else ''}); "
+                     "commit them, or pass --allow-dirty to record the run with its diff")  # fmt: skip
 
 
 def device() -> dict[str, Any]:
@@ -90,21 +226,34 @@ def record(
     argv: Sequence[str] | None = None,
     *,
     seeds: Any = None,
-    commit: str = "",
+    allow_dirty: bool = False,
     device_info: dict[str, Any] | None = None,
+    cwd: str | None = None,
     **extra: Any,
 ) -> dict[str, Any]:
     """The provenance of a run starting now (call it before the run: the wall time counts from here).
 
     ``module``: ``benchmarks.<name>``; ``argv``: its arguments (default ``sys.argv[1:]``); ``seeds``:
-    the seeds (a list, or words saying how the keys are made); ``commit``: see :func:`git_state`;
-    ``device_info``: the device where jax is not to be asked here (default :func:`device`);
-    ``extra``: further fields (``note``; ``run_directories``: where the runs' files are, in words)."""
+    the seeds (a list, or words saying how the keys are made; :func:`benchmarks.seeds.record`);
+    ``allow_dirty``: record a tree with edits or of unknown state instead of refusing it
+    (:func:`require_clean`); ``device_info``: the device where jax is not to be asked here (default
+    :func:`device`); ``cwd``: the checkout (default :data:`REPO`); ``extra``: further fields (``note``;
+    ``run_directories``: where the runs' files are, in words).
+
+    Raises:
+      SystemExit: the tree has uncommitted edits or its state cannot be read, and not ``allow_dirty``.
+    """
     import jax
 
+    state = git_state(cwd)
+    require_clean(state, allow_dirty)
+    diff = state.pop("diff", None)
+    if diff:
+        state["diff"] = diff[:MAX_DIFF_CHARS]
+        state["diff_truncated"] = len(diff) > MAX_DIFF_CHARS
     return {
         "command": command(module, argv),
-        **git_state(commit=commit),
+        **state,
         "device": device() if device_info is None else device_info,
         "host": platform.node(),
         "seeds": seeds,
@@ -133,8 +282,9 @@ def tree_words(prov: dict[str, Any]) -> str:
     listed = prov.get("dirty_files", [])
     more = prov.get("dirty_count", len(listed)) - 8
     files = ", ".join(line[3:] for line in listed[:8]) + (f" and {more} more" if more > 0 else "")
-    return (f"**DIRTY tree: uncommitted edits** in {files} (diff sha1 {prov.get('diff_sha1')}): the figures come "
-            "from code that this commit alone does not hold")  # fmt: skip
+    kept = "; the diff is in the .json" if prov.get("diff") else ""
+    return (f"**DIRTY tree: uncommitted edits** in {files} (diff sha1 {prov.get('diff_sha1')}{kept}): the figures "
+            "come from code that this commit alone does not hold")  # fmt: skip
 
 
 def device_words(dev: Any) -> str:
@@ -143,6 +293,13 @@ def device_words(dev: Any) -> str:
     count = f"{dev['count']} x " if dev.get("count", 1) != 1 else ""
     cores = f", {dev['cpu_cores']} CPU cores" if dev.get("cpu_cores") else ""
     return f"{count}{dev['name']} ({dev['platform']}{cores})"
+
+
+def seed_words(entry: Any) -> str:
+    """A record's ``seeds`` in words (:func:`benchmarks.seeds.words`)."""
+    from benchmarks.seeds import words
+
+    return words(entry)
 
 
 def markdown(*provs: dict[str, Any]) -> str:
@@ -155,8 +312,9 @@ def markdown(*provs: dict[str, Any]) -> str:
         lines += [
             f"- Command: `{p['command']}`",
             f"- Commit: {p['commit']} ({tree_words(p)})",
+            *([f"- Tree: code SHA-1 {p['tree_sha1']}, read from {p['commit_source']}"] if p.get("tree_sha1") else []),
             f"- Device: {device_words(p['device'])}; host {p.get('host', '?')}",
-            f"- Seeds: {'none (not a seeded experiment)' if seeds is None else seeds}",
+            f"- Seeds: {'none (not a seeded experiment)' if seeds is None else seed_words(seeds)}",
             f"- Wall time: {p['wall_s']:.0f} s from the command's start to this write (started {p['started']}, "
             f"written {p.get('written', '?')})",
             f"- jax {p.get('jax', '?')}, Python {p.get('python', '?')}",
@@ -245,3 +403,119 @@ def keep_run(run_dir: str, stem: str, name: str | None = None) -> str | None:
             shutil.copyfile(src, os.path.join(dest, name))
             copied += 1
     return dest if copied else None
+
+
+def rewrite_markdown(stem: str, result: dict[str, Any], text: str, earlier: Sequence[dict[str, Any]] = ()) -> str:
+    """Write ``stem.md`` anew from a results file's ``result`` (as read from ``stem.json``, left as it is):
+    ``text``, then its provenance sections as :func:`write` writes them (the records unchanged, the wall
+    times those they hold). Returns the markdown."""
+    md = text.rstrip("\n") + "\n\n"
+    if result.get("provenance_recovered"):
+        md += recovered_markdown(result["provenance_recovered"]) + "\n"
+    md += markdown(*earlier, result["provenance"])
+    with open(stem + ".md", "w") as f:
+        f.write(md)
+    return md
+
+
+def record_problem(p: dict[str, Any]) -> str | None:
+    """Why a provenance record does not verify the code it ran (None: a commit read by the tool from a clean
+    tree)."""
+    if not isinstance(p, dict) or not p.get("commit") or p["commit"] == "unknown":
+        return "names no commit"
+    if "--commit" in str(p.get("commit_source", "")):
+        return "commit typed by hand (--commit); the tree it ran from was not checked"
+    if p.get("dirty") is True:
+        return "ran from a tree with uncommitted edits"
+    if p.get("dirty") is not False:
+        return "the tree's state was not recorded"
+    return None
+
+
+def _in_history(commit: str, cwd: str) -> bool:
+    return _git("cat-file", "-e", f"{commit}^{{commit}}", cwd=cwd) is not None
+
+
+def audit_result(result: dict[str, Any], history: bool = False, cwd: str | None = None) -> list[str]:
+    """The reasons a results file's figures are not verified by its provenance ([] where they are):
+    no record or a record that does not verify (:func:`record_problem`), merged invocations that do not,
+    thesis rows taken from earlier invocations with no record of their own, and with ``history`` a commit
+    that this repository does not hold."""
+    if "invocations" in result and "provenance" not in result:  # a file of several reports, each with its own
+        parts = list(result["invocations"].values())
+        records = [part.get("provenance") for part in parts]
+        rows = [row for part in parts for row in part.get("rows", [])]
+    else:
+        records, rows = [result.get("provenance")], result.get("rows", [])
+        records += list(result.get("sources", []))
+    if records == [None]:
+        return ["written before the benchmark recorded its provenance (commit and tree from git history, "
+                "where at all)" if "provenance_recovered" in result else "names no commit"]  # fmt: skip
+    reasons = []
+    problems = [problem for problem in map(record_problem, records) if problem]
+    if problems:
+        what = "; ".join(dict.fromkeys(problems))
+        reasons.append(what if len(records) == 1 else f"{len(problems)} of its {len(records)} invocations: {what}")
+    rows = [r for r in rows if isinstance(r, dict)]
+    earlier = [r for r in rows if any(isinstance(s, dict) and s.get("skipped") for s in r.get("seeds", []))
+               and (r.get("provenance") or {}).get("missing", 1)]  # fmt: skip
+    if earlier:
+        reasons.append(f"{len(earlier)} of its {len(rows)} rows were run by an earlier invocation whose commit the "
+                       "file does not record")  # fmt: skip
+    unclean = [r for r in rows if r.get("provenance") and not r["provenance"].get("clean", True)]
+    if unclean:
+        reasons.append(f"{len(unclean)} of its {len(rows)} rows ran from a tree with uncommitted edits")
+    if history:
+        missing = [r["commit"] for r in records if isinstance(r, dict) and r.get("commit") not in (None, "", "unknown")
+                   and not _in_history(r["commit"], cwd or REPO)]  # fmt: skip
+        if missing:
+            reasons.append(f"commit {', '.join(dict.fromkeys(missing))} is not in this repository's history")
+    return reasons
+
+
+def audit(results: str, history: bool = False) -> dict[str, list[str]]:
+    """``{results file name without .json: reasons}`` for every ``.json`` in ``results`` that does not verify
+    (:func:`audit_result`); a file that does not read as JSON is listed as such."""
+    out = {}
+    for path in sorted(glob.glob(os.path.join(results, "*.json"))):
+        if os.path.basename(path) in NOT_RESULTS:
+            continue
+        try:
+            with open(path) as f:
+                result = json.load(f)
+        except ValueError as e:
+            out[os.path.basename(path)[:-5]] = [f"not readable as JSON ({e})"]
+            continue
+        reasons = audit_result(result, history) if isinstance(result, dict) else ["not a results record"]
+        if reasons:
+            out[os.path.basename(path)[:-5]] = reasons
+    return out
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m benchmarks.provenance stamp|check|audit``."""
+    p = argparse.ArgumentParser(prog="python -m benchmarks.provenance", description=__doc__.split("\n")[0])
+    sub = p.add_subparsers(dest="what", required=True)
+    sub.add_parser("stamp", help=f"write {STAMP_NAME}: the commit, dirty flag, diff and file hashes of this tree")
+    sub.add_parser("check", help="print the state a benchmark run would record now, and whether it would run")
+    a = sub.add_parser("audit", help="list the results files whose provenance does not verify")
+    a.add_argument("--results", default=os.path.join(REPO, "benchmarks", "results"))
+    a.add_argument("--history", action="store_true", help="also check that each commit is in this repository")
+    args = p.parse_args(argv)
+    if args.what == "stamp":
+        s = write_stamp()
+        print(f"{STAMP_NAME}: commit {s['commit']}, {tree_words(s)}, {len(s['files'])} files (tree {s['tree_sha1']})")
+    elif args.what == "check":
+        s = git_state()
+        print(f"commit {s['commit']} ({tree_words(s)}); read from {s['commit_source']}; tree {s['tree_sha1']}")
+        if s.get("stamp_note"):
+            print(s["stamp_note"])
+        print("a run would be refused without --allow-dirty" if s["dirty"] is not False else "a run would go ahead")
+    else:
+        for name, reasons in audit(args.results, args.history).items():
+            print(f"{name}: {'; '.join(reasons)}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -25,6 +25,7 @@ import numpy as np
 
 import envs_mjx
 from benchmarks import provenance
+from benchmarks import seeds as bench_seeds
 from benchmarks.arguments import nonnegative, positive
 from benchmarks.tracking_report import pairs, train_seeds
 from envs_mjx import racetrack
@@ -95,7 +96,7 @@ def run_method(method: str, args: argparse.Namespace, env: Any) -> dict[str, Any
     def lap(state):
         return test(lambda e, s: trainer.policy(state)(s.obs), k_test)
 
-    keys = jax.random.split(jax.random.PRNGKey(args.seed0), args.seeds)
+    keys = bench_seeds.keys(args.seed_ids)
     results, metrics, compile_s, train_s = train_seeds(train, lap, keys, vmapped=not args.sequential)
     seeds = per_seed(results)
     curve = {k: np.asarray(metrics[k]).tolist() for k in ("episode_return", "success", "collisions") if k in metrics}
@@ -105,13 +106,21 @@ def run_method(method: str, args: argparse.Namespace, env: Any) -> dict[str, Any
             "curves": curve}  # fmt: skip
 
 
+def seed_cell(meta: dict[str, Any]) -> str:
+    """The seeds in words: their ids and range (:mod:`benchmarks.seeds`), or the key they were split from in a
+    file written before."""
+    if "seed_ids" in meta:
+        return f"seeds {', '.join(map(str, meta['seed_ids']))} ({meta['purpose']} range)"
+    return f"{meta['seeds']} seeds from key {meta['seed0']}"
+
+
 def to_markdown(report: dict[str, Any]) -> str:
     meta = report["meta"]
     lines = [
         f"# Racing with opponents, Tables 6.2–6.3 — {meta['device']}",
         "",
         f"`{meta['command']}` at commit {meta['commit']} ({provenance.tree_words(report['provenance'])}); "
-        f"preset `{meta['preset']}`, {meta['seeds']} seeds from key {meta['seed0']}, {meta['laps']} laps per road "
+        f"preset `{meta['preset']}`, {seed_cell(meta)}, {meta['laps']} laps per road "
         f"per seed (random starts and opponents, test key {meta['test_key']}); env overrides "
         f"{meta['env_overrides']}. Goal: {GOAL}. Cells: mean ± std over seeds of the laps of each outcome "
         "(success / collision / out of track / stalled), the laps whose collisions touched another car and a "
@@ -145,8 +154,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
     p.add_argument("--preset", default="fast", choices=("thesis", "cpu", "fast"))
-    p.add_argument("--seeds", type=positive, default=3)
-    p.add_argument("--seed0", type=nonnegative, default=0, help="the seeds' keys split from PRNGKey(seed0)")
+    bench_seeds.add_args(p)
     p.add_argument("--laps", type=positive, default=20, help="test laps per road and seed")
     p.add_argument("--test-key", type=nonnegative, default=1)
     p.add_argument("--set", nargs="*", default=[], metavar="FIELD=VALUE", help="DDPGConfig overrides")
@@ -158,10 +166,15 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     args = p.parse_args(argv)
     overrides = {**ddpg_env_overrides(args.preset, "racecar"), **pairs(args.env_config)}
     env = envs_mjx.make("racecar", **overrides)
-    seeds = f"{args.seeds} keys split from PRNGKey({args.seed0}); test key PRNGKey({args.test_key})"
-    prov = provenance.record("benchmarks.racing", argv, seeds=seeds, commit=args.commit)
+    try:
+        args.seed_ids = bench_seeds.seed_ids(args.purpose, args.seeds, args.first_seed)
+    except ValueError as e:
+        p.error(f"--seeds/--first-seed: {e}")
+    how = f"training key PRNGKey(seed); test key PRNGKey({args.test_key})"
+    seeds = bench_seeds.record(args.purpose, args.seed_ids, how)
+    prov = provenance.record("benchmarks.racing", argv, seeds=seeds, allow_dirty=args.allow_dirty)
     meta = {"device": device_label(), "command": prov["command"], "commit": prov["commit"], "preset": args.preset,
-            "seeds": args.seeds, "seed0": args.seed0,
+            "seeds": args.seeds, "purpose": args.purpose, "seed_ids": args.seed_ids,
             "laps": args.laps, "test_key": args.test_key, "env_overrides": overrides}  # fmt: skip
     report: dict[str, Any] = {"provenance": prov, "meta": meta, "cases": []}
     os.makedirs(args.out, exist_ok=True)

@@ -298,7 +298,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     on_gpu = jax.default_backend() != "cpu"
     seeds = "fixed in the code: PRNGKey(0)-PRNGKey(5) for the items, priorities, keys and TD errors"
     result: dict[str, Any] = {
-        "provenance": provenance.record("benchmarks.replay_throughput", argv, seeds=seeds, commit=args.commit),
+        "provenance": provenance.record("benchmarks.replay_throughput", argv, seeds=seeds,
+                                        allow_dirty=args.allow_dirty),
         "device": device_label(), "device_kind": jax.devices()[0].device_kind, "jax": jax.__version__,
         "host": platform.node(), "capacity": args.capacity, "fill": args.fill, "inner": args.inner,
         "repeats": args.repeats, "ops": {}, "ratios": {},

@@ -150,7 +150,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--brax-only", default="", help=argparse.SUPPRESS)
     provenance.add_args(p)
     args = p.parse_args(argv)
-    prov = provenance.record("benchmarks.scaling", argv, seeds=SEEDS, commit=args.commit)
+    prov = provenance.record("benchmarks.scaling", argv, seeds=SEEDS, allow_dirty=args.allow_dirty)
     if args.brax_only:
         rows = [r for e in args.envs for r in run_brax(e, args)]
         with open(args.brax_only, "w") as f:

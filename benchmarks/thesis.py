@@ -67,7 +67,8 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks import provenance
+from benchmarks import deviations, provenance
+from benchmarks import seeds as bench_seeds
 from benchmarks.arguments import nonnegative, positive
 from benchmarks.tracking_report import GOAL, THESIS
 from benchmarks.train_throughput import RESULTS, device_label
@@ -77,7 +78,8 @@ from jaxrl_robot.logging import read_csv
 ARM_GOAL = 95.0
 PRECISE_GOAL = (95.0, 90.0)
 """``--variant precise``: success within 2 cm and within 1 cm, % (every arm row)."""
-VARIANTS = ("standard", "precise")
+VARIANTS = ("standard", "precise", "faithful")
+"""``faithful``: every row in the thesis's setting (:func:`faithful_row`, the ``thesis`` preset)."""
 ROADS = ("train", "test1", "test2", "test3")
 RACING_THESIS = {  # per road: (success, collision, out of track, overtakes) of 20 laps, Tables 6.2 and 6.3
     "ddpg": ((18, 2, 0, 2.65), (16, 2, 2, 2.55), (17, 2, 1, 2.6), (18, 1, 1, 2.85)),
@@ -201,6 +203,16 @@ def precise_row(row: Row) -> Row:
     return dataclasses.replace(row, argv=argv)
 
 
+def faithful_row(row: Row) -> Row:
+    """``row`` in the thesis's plant: the unicycle rows in ``kinematic`` mode (the thesis's Euler update of
+    Eq. 3.18; the arm rows already run ``kinematic``); with the ``thesis`` preset (Tables 3.2, 3.3, 4.2,
+    5.2, 5.3 and Eq. 3.21–3.23) the thesis's setting."""
+    if "unicycle" not in row.argv:
+        return row
+    argv = tuple(x for a in row.argv for x in ((a, "mode=kinematic") if a.startswith("trajectory=") else (a,)))
+    return dataclasses.replace(row, argv=argv)
+
+
 def is_precise(row: Row | dict) -> bool:
     argv = row.argv if isinstance(row, Row) else row["argv"]
     return "arm7_precise" in argv
@@ -233,8 +245,7 @@ def seed_start(row: Row, seed: int, args: argparse.Namespace) -> tuple[dict[str,
     out = os.path.join(args.runs, row.table, row.name, f"seed{seed}")
     existing = run_dir_of(args.runs, row, seed)
     if existing and os.path.exists(os.path.join(existing, "eval.json")):
-        done = {**json.load(open(os.path.join(existing, "eval.json"))), "run_dir": existing, "skipped": True}
-        return done, [], out
+        return finished_record(os.path.join(existing, "eval.json")), [], out
     argv = ["--resume", existing] if existing else [*command(row, args.preset, seed, args.smoke), "--out", out]
     return None, argv, out
 
@@ -242,6 +253,47 @@ def seed_start(row: Row, seed: int, args: argparse.Namespace) -> tuple[dict[str,
 def seed_result(row: Row, seed: int, args: argparse.Namespace, code: Any, wall: float, where: str = "") -> dict:
     """The record of a seed's run that ended with exit ``code``: its evaluation, or the error."""
     return run_record(run_dir_of(args.runs, row, seed), code, wall, where)
+
+
+RAN_AT = "provenance.json"
+"""Written into a seed's run directory when it finishes: the commit and tree it ran from."""
+
+
+def mark_ran(run_dir: str, prov: dict[str, Any]) -> dict[str, Any]:
+    """Record in ``run_dir`` (``provenance.json``) that its run finished under ``prov`` (this invocation's
+    provenance): commit, dirty flag, tree and diff SHA-1, command; returns that record."""
+    keep = ("commit", "dirty", "dirty_count", "diff_sha1", "tree_sha1", "commit_source", "command")
+    ran = {k: prov.get(k) for k in keep}
+    with open(os.path.join(run_dir, RAN_AT), "w") as f:
+        json.dump(ran, f, indent=1)
+    return ran
+
+
+def ran_at(run_dir: str) -> dict[str, Any] | None:
+    """The ``provenance.json`` of a finished run (None where the run wrote none: before it was recorded)."""
+    try:
+        with open(os.path.join(run_dir, RAN_AT)) as f:
+            return json.load(f)
+    except (OSError, ValueError):
+        return None
+
+
+def finished_record(eval_json: str) -> dict[str, Any]:
+    """The record of a seed found finished (``eval.json``), skipped: its evaluation, folder and provenance."""
+    run_dir = os.path.dirname(eval_json)
+    with open(eval_json) as f:
+        done = {**json.load(f), "run_dir": run_dir, "skipped": True}
+    ran = ran_at(run_dir)
+    return {**done, "provenance": ran} if ran else done
+
+
+def row_provenance(seeds: list[dict]) -> dict[str, Any]:
+    """A row's provenance from its seeds' records: the commits they ran at, whether every one's tree was clean,
+    and how many finished seeds recorded none."""
+    done = [s for s in seeds if "error" not in s]
+    ran = [s["provenance"] for s in done if s.get("provenance")]
+    return {"commits": sorted({r["commit"] for r in ran}), "clean": all(r.get("dirty") is False for r in ran),
+            "missing": len(done) - len(ran)}  # fmt: skip
 
 
 def run_record(run_dir: str | None, code: Any, wall: float, where: str = "") -> dict:
@@ -308,7 +360,7 @@ def together_start(
     run = latest_run(out)
     evals = [os.path.join(seed_folder(run, seeds, k), "eval.json") for k in seeds] if run else []
     if run and all(os.path.exists(e) for e in evals):
-        return [{**json.load(open(e)), "run_dir": os.path.dirname(e), "skipped": True} for e in evals], [], out
+        return [finished_record(e) for e in evals], [], out
     if run:
         return None, ["--resume", run], out
     return None, [*command(row, args.preset, seeds[0], args.smoke), "--seeds", str(len(seeds)), "--out", out], out
@@ -402,6 +454,9 @@ def row_figure(row: Row, seeds: list[dict]) -> dict[str, Any]:
         vals = np.array([[s[k] for k in axis_keys(s)] for s in done])
         goal = np.array(GOAL[row.reference])
         met = vals.mean(0) <= goal
+        if all("steps" in s for s in done):  # the test episode's steps and the mean |error| per step
+            steps = np.array([float(s["steps"]) for s in done])
+            out.update(steps=steps.tolist(), per_step=(vals / steps[:, None]).mean(0).tolist())
     out.update(values=vals.tolist(), mean=vals.mean(0).tolist(), std=vals.std(0).tolist(), goal=goal.tolist(),
                met=met.tolist(), wall_s=runs_wall(done))  # fmt: skip
     return out
@@ -425,8 +480,42 @@ def _cell(mean: float, std: float, met: bool, digits: int) -> str:
     return f"**{text}**" if met else text
 
 
-def table_markdown(table: str, results: list[dict], fig_dir: str, rel: str) -> list[str]:
-    """The section of one table: rows, thesis figures, goals, per-seed values; its figures."""
+def _faithful_cell(fig: dict | None, kind: str, i: int = 0) -> str:
+    """The faithful column's cell: ``fig``'s mean ± std (tracking: x / y / θ-z means; driving: road ``i``'s
+    successes), ``not run`` without one."""
+    if not fig or not fig.get("seeds_done"):
+        return "not run"
+    if kind == "tracking":
+        return " / ".join(f"{m:.2f}" for m in fig["mean"]) + f" ({fig['seeds_done']} seeds)"
+    return f"{fig['mean'][i]:.1f} ± {fig['std'][i]:.1f} ({fig['seeds_done']} seeds)"
+
+
+def deviations_markdown(rows: list[dict], faithful: dict[str, dict]) -> list[str]:
+    """Under a table: each row's deviations from the thesis's setting (:mod:`benchmarks.deviations`), and the
+    faithful column's where it has rows."""
+    listed = [r for r in rows if r.get("deviations")]
+    if not listed:
+        return []
+    lines = ["", "Deviations from the thesis's setting (the thesis's value → ours; the `thesis` preset and the "
+             "thesis's plant are the reference, `benchmarks/deviations.py`):", ""]  # fmt: skip
+    for r in listed:
+        lines.append(f"- {r['row']['label']}: {r['deviations']['text']}")
+    sources = dict.fromkeys(r["deviations"]["source"] for r in listed)
+    lines += ["", "Read from " + "; ".join(sources) + "."]
+    kept = [(r, faithful[r["row"]["name"]]) for r in rows if r["row"]["name"] in faithful]
+    if kept:
+        lines += ["", "The faithful column's own deviations:", ""]
+        lines += [f"- {r['row']['label']}: {f['deviations']['text'] if f.get('deviations') else 'not recorded'}"
+                  for r, f in kept]  # fmt: skip
+    return lines
+
+
+def table_markdown(table: str, results: list[dict], fig_dir: str, rel: str,
+                   faithful: dict[str, dict] | None = None) -> list[str]:  # fmt: skip
+    """The section of one table: rows, thesis figures, goals, per-seed values, the faithful column (``faithful``:
+    row name -> its result in the thesis's setting; :func:`faithful_row`), its figures and each row's
+    deviations from the thesis's setting."""
+    faithful = faithful or {}
     lines = [f"## {TITLES[table]}", ""]
     rows = [r for r in results if r["row"]["table"] == table]
     kind = rows[0]["row"]["kind"]
@@ -436,20 +525,24 @@ def table_markdown(table: str, results: list[dict], fig_dir: str, rel: str) -> l
                   "| met (≥ 95 / ≥ 90) | within 5 cm | wall s | command |",
                   "|---|---:|---:|---:|---|---|---:|---:|---|"]  # fmt: skip
     elif kind == "arm":
-        lines += ["| row | thesis | ours (mean ± std) | seeds | met (≥ 95) | at 2 cm / 1 cm | wall s | command |",
-                  "|---|---:|---:|---|---|---:|---:|---|"]
+        lines += ["| row | thesis | faithful (thesis's setting) | ours (mean ± std) | seeds | met (≥ 95) "
+                  "| at 2 cm / 1 cm | wall s | command |",
+                  "|---|---:|---:|---:|---|---|---:|---:|---|"]  # fmt: skip
     elif kind == "tracking":
-        lines += ["| row | thesis x / y / θ-z | ours x | ours y | ours θ-z | seeds (x / y / θ-z) | goal | met | wall s "
-                  "| command |", "|---|---|---:|---:|---:|---|---|---|---:|---|"]  # fmt: skip
+        lines += ["| row | thesis x / y / θ-z | faithful x / y / θ-z | ours x | ours y | ours θ-z "
+                  "| ours per step x / y / θ-z | test steps | seeds (x / y / θ-z) | goal | met | wall s | command |",
+                  "|---|---|---|---:|---:|---:|---|---:|---|---|---|---:|---|"]  # fmt: skip
     elif kind == "driving":
-        lines += ["| row | road | thesis success / collision / out / overtakes | ours success | collisions | "
-                  "overtakes | km/h | seeds | met | wall s | command |",
-                  "|---|---|---|---:|---:|---:|---:|---|---|---:|---|"]  # fmt: skip
+        lines += ["| row | road | thesis success / collision / out / overtakes | faithful success | ours success "
+                  "| collisions | overtakes | km/h | seeds | met | wall s | command |",
+                  "|---|---|---|---:|---:|---:|---:|---:|---|---|---:|---|"]  # fmt: skip
     else:
         lines += ["| row | thesis | ours | status |", "|---|---|---|---|"]
+    columns = lines[-2].count("|") - 1
     curves: dict[str, list] = {}
     for r in rows:
         row, fig = r["row"], r["figure"]
+        kept = faithful.get(row["name"], {}).get("figure")
         cmd = f"`python -m train.{row['algo']} {' '.join(r['command'])}`" if row["algo"] else ""
         if row["missing"]:
             lines.append(f"| {row['label']} | {row['thesis']} | **missing** | {row['missing']} |")
@@ -457,7 +550,7 @@ def table_markdown(table: str, results: list[dict], fig_dir: str, rel: str) -> l
         if not fig.get("seeds_done"):
             errors = "; ".join(s.get("error", "") for s in r["seeds"])
             lines.append(f"| {row['label']} | {row['thesis']} | **not run** ({errors or 'no seed finished'}) |"
-                         + " |" * (6 if precise else 7 if kind == "arm" else 8))  # fmt: skip
+                         + " |" * (columns - 3))  # fmt: skip
             continue
         per_seed = "; ".join(" / ".join(f"{v:.2f}" if kind == "tracking" else f"{v:.0f}" for v in s)
                              for s in fig["values"])  # fmt: skip
@@ -467,7 +560,8 @@ def table_markdown(table: str, results: list[dict], fig_dir: str, rel: str) -> l
                 thesis = " / ".join(f"{v:g}" for v in row["thesis"][i])
                 cell = _cell(fig["mean"][i], fig["std"][i], fig["met"][i], 1)
                 each = ", ".join(f"{v[i]:.0f}" for v in fig["values"])
-                lines.append(f"| {row['label'] if i == 0 else ''} | {road} | {thesis} | {cell} of {fig['laps']:.0f} | "
+                lines.append(f"| {row['label'] if i == 0 else ''} | {road} | {thesis} "
+                             f"| {_faithful_cell(kept, kind, i)} | {cell} of {fig['laps']:.0f} | "
                              f"{fig['collisions'][i]:.1f} | {fig['overtakes'][i]:.2f} | {fig['speed_kmh'][i]:.0f} | "
                              f"{each} ({fig['seeds_done']}/{fig['seeds']}) | {'yes' if fig['met'][i] else 'no'} | "
                              f"{fig['wall_s']:.0f} | {cmd if i == 0 else ''} |")  # fmt: skip
@@ -479,29 +573,33 @@ def table_markdown(table: str, results: list[dict], fig_dir: str, rel: str) -> l
         elif kind == "arm":
             cell = _cell(fig["mean"][0], fig["std"][0], fig["met"][0], 1)
             at = " / ".join(f"{v:.1f}" for v in fig.get("precision", ())) or "—"
-            lines.append(f"| {row['label']} | {row['thesis']} | {cell} | {seeds} | {'yes' if fig['met'][0] else 'no'} "
-                         f"| {at} | {fig['wall_s']:.0f} | {cmd} |")  # fmt: skip
+            lines.append(f"| {row['label']} | {row['thesis']} | {_faithful_cell(kept, kind)} | {cell} | {seeds} "
+                         f"| {'yes' if fig['met'][0] else 'no'} | {at} | {fig['wall_s']:.0f} | {cmd} |")  # fmt: skip
         else:
             cells = " | ".join(_cell(m, s, ok, 2) for m, s, ok in zip(fig["mean"], fig["std"], fig["met"], strict=True))
             goal = " / ".join(f"{g:.2f}" for g in fig["goal"])
             met = f"{sum(fig['met'])}/3"
             thesis = " / ".join(str(t) for t in row["thesis"])
-            lines.append(f"| {row['label']} | {thesis} | {cells} | {seeds} | {goal} | {met} | {fig['wall_s']:.0f} "
-                         f"| {cmd} |")  # fmt: skip
+            per_step = " / ".join(f"{v:.4f}" for v in fig["per_step"]) if "per_step" in fig else "not recorded"
+            steps = "/".join(f"{v:.0f}" for v in dict.fromkeys(fig["steps"])) if "steps" in fig else "not recorded"
+            lines.append(f"| {row['label']} | {thesis} | {_faithful_cell(kept, kind)} | {cells} | {per_step} | {steps} "
+                         f"| {seeds} | {goal} | {met} | {fig['wall_s']:.0f} | {cmd} |")  # fmt: skip
         csvs = [os.path.join(s["run_dir"], "metrics.csv") for s in r["seeds"] if "error" not in s]
         curves[row["name"]] = [read_csv(c) for c in csvs if os.path.exists(c)]
         if kind == "tracking" and r["seeds"] and "error" not in r["seeds"][0]:
             for name in ("tracking_path.png", "tracking_errors.png"):
-                src = os.path.join(r["seeds"][0]["run_dir"], name)
+                src, dst = os.path.join(r["seeds"][0]["run_dir"], name), f"{table}-{row['name']}-{name}"
                 if os.path.exists(src):
-                    dst = f"{table}-{row['name']}-{name}"
                     shutil.copy(src, os.path.join(fig_dir, dst))
-                    lines.append(f"| ![{row['label']}: {name[:-4]}, seed 0]({rel}/{dst}) |" + " |" * 9)
+                if os.path.exists(os.path.join(fig_dir, dst)):  # copied now, or by the invocation that ran the row
+                    lines.append(f"| ![{row['label']}: {name[:-4]}, seed 0]({rel}/{dst}) |" + " |" * (columns - 1))
     key = "success" if kind == "arm" else "episode_return"
-    if curves:
-        path = plots.plot_seed_bands(curves, key, fig_dir, f"table-{table}-curves.png", TITLES[table].split(" — ")[0])
-        if path:
-            lines += ["", f"![learning curves, {TITLES[table].split(' — ')[0]}]({rel}/{os.path.basename(path)})"]
+    name = f"table-{table}-curves.png"
+    if any(curves.values()):
+        plots.plot_seed_bands(curves, key, fig_dir, name, TITLES[table].split(" — ")[0])
+    if os.path.exists(os.path.join(fig_dir, name)):
+        lines += ["", f"![learning curves, {TITLES[table].split(' — ')[0]}]({rel}/{name})"]
+    lines += deviations_markdown(rows, faithful if not precise else {})
     lines.append("")
     return lines
 
@@ -538,40 +636,95 @@ def summary_markdown(results: list[dict]) -> list[str]:
     return [*lines, ""]
 
 
-def report(results: list[dict], meta: dict[str, Any], stem: str) -> str:
-    """Write ``stem.md`` / ``stem.json`` with ``meta["provenance"]`` (figures in ``stem-figures/``); returns the
-    markdown."""
-    fig_dir = stem + "-figures"
-    os.makedirs(fig_dir, exist_ok=True)
-    rel = os.path.basename(fig_dir)
-    lines = [
-        f"# The thesis's tables with jaxrl-robot — {meta['device']}, `{meta['preset']}` preset"
-        + (", the arm at a 1 cm goal (`arm7_precise`)" if meta.get("variant") == "precise" else ""),
+def load_faithful(path: str | None) -> dict[str, dict]:
+    """The rows of a faithful report (``--variant faithful``'s ``.json``) by row name; {} without one."""
+    if not path or not os.path.exists(path):
+        return {}
+    with open(path) as f:
+        saved = json.load(f)
+    return {r["row"]["name"]: r for r in saved.get("rows", [])}
+
+
+def header(meta: dict[str, Any]) -> list[str]:
+    """The report's title and its first paragraph (command, commit, seeds, wall time, what bold means)."""
+    variant = meta.get("variant")
+    title = {"precise": ", the arm at a 1 cm goal (`arm7_precise`)",
+             "faithful": ", every row in the thesis's setting (`--variant faithful`)"}.get(variant, "")  # fmt: skip
+    purpose = meta.get("purpose")
+    seeds = (f"{meta['seeds']} seed(s) per row ({seed_words(meta)})" if purpose else f"{meta['seeds']} seed(s) per row")
+    faithful = meta.get("faithful")
+    return [
+        f"# The thesis's tables with jaxrl-robot — {meta['device']}, `{meta['preset']}` preset{title}",
         "",
-        f"`{meta['command']}` at commit {meta['commit']} (jax {meta['jax']}, {meta['date']}); {meta['seeds']} "
-        "seed(s) per row, "
+        f"`{meta['command']}` at commit {meta['commit']} (jax {meta['jax']}, {meta['date']}); {seeds}, "
         + ("a row's seeds one command-line run (`--seeds`)" if meta.get("together") else "each one command-line run")
         + (f", {meta['parallel']} rows at once" if meta.get("parallel", 1) > 1 else "")
         + f"; the rows' runs took {meta['runs_wall_s']:.0f} s in all "
         f"(this invocation {meta['wall_s']:.0f} s)"
         + (" (smoke budgets: not results)" if meta["smoke"] else "") + ". Bold: at the goal (arm ≥ 95 % per row"
-        + ("; precise variant: ≥ 95 % within 2 cm and ≥ 90 % within 1 cm" if meta.get("variant") == "precise" else "")
+        + ("; precise variant: ≥ 95 % within 2 cm and ≥ 90 % within 1 cm" if variant == "precise" else "")
         + "; "
         "tracking ≤ ½ of the thesis's best over all its methods, per axis; racing ≥ 19 of 20 laps per road with "
-        "at most 1 collision, every seed).",
+        "at most 1 collision, every seed). Tracking: the sum of |error| over one test episode from t = 0, its "
+        "steps and the mean per step beside. The faithful column: the same row in the thesis's setting ("
+        + (f"`{os.path.basename(faithful)}`" if faithful else "not run yet: `python -m benchmarks.thesis --variant "
+           "faithful --purpose report`") + "); each row's deviations from that setting are listed under its table.",
         "",
+        *([meta["note"], ""] if meta.get("note") else []),
     ]  # fmt: skip
+
+
+def seed_words(meta: dict[str, Any]) -> str:
+    """``the report range: seeds 1000000..1000002`` or ``the tuning range: seeds 0..2``."""
+    ids = meta.get("seed_ids") or []
+    span = f"{ids[0]}..{ids[-1]}" if ids else "?"
+    return ("the report range, never used to choose a setting" if meta["purpose"] == "report"
+            else "the tuning range") + f": seeds {span}"  # fmt: skip
+
+
+def report(results: list[dict], meta: dict[str, Any], stem: str, rewrite: bool = False) -> str:
+    """Write ``stem.md`` / ``stem.json`` with ``meta["provenance"]`` (figures in ``stem-figures/``); returns the
+    markdown. ``rewrite``: the markdown alone, anew from a saved report (its ``.json`` left as it is)."""
+    fig_dir = stem + "-figures"
+    os.makedirs(fig_dir, exist_ok=True)
+    rel = os.path.basename(fig_dir)
+    faithful = load_faithful(meta.get("faithful"))
+    lines = header(meta)
     for table in dict.fromkeys(r["row"]["table"] for r in results):
-        lines += table_markdown(table, results, fig_dir, rel)
+        lines += table_markdown(table, results, fig_dir, rel, faithful)
     lines += summary_markdown(results)
     text = "\n".join(lines)
-    return provenance.write(stem, {"provenance": meta["provenance"], "meta": meta, "rows": results}, text)
+    saved = {"provenance": meta["provenance"], "meta": meta, "rows": results}
+    if rewrite:
+        return provenance.rewrite_markdown(stem, saved, text)
+    return provenance.write(stem, saved, text)
+
+
+def regenerate(path: str, faithful: str | None = None, results: str = RESULTS) -> str:
+    """Rewrite the markdown of the saved report ``path`` (``.json``) with this code: figures and deviations
+    from its rows (each row's ``config.json`` kept under ``<results>/runs/``), the faithful column from
+    ``faithful`` (default: the one the report names). Returns the markdown."""
+    with open(path) as f:
+        saved = json.load(f)
+    stem = path[: -len(".json")]
+    meta = {**saved["meta"], "provenance": saved["provenance"]}
+    if faithful:
+        meta["faithful"] = faithful
+    for r in saved["rows"]:
+        r["figure"] = row_figure(Row(**r["row"]), r["seeds"])
+        if r["figure"].get("seeds_done") and r["row"]["algo"] and not meta.get("smoke"):
+            config = deviations.kept_config(results, stem, r["row"]["table"], r["row"]["name"])
+            r["deviations"] = deviations.row_deviations(r["row"]["algo"], r["row"]["argv"], r["row"]["kind"], config,
+                                                        meta["preset"])  # fmt: skip
+    return report(saved["rows"], meta, stem, rewrite=True)
 
 
 def select(tables: Sequence[str] | None, names: Sequence[str] | None, variant: str = "standard") -> list[Row]:
     """The rows of ``tables`` (default all), narrowed to ``names`` (row ids ``table/name`` or names);
-    ``variant='precise'``: the arm rows on ``arm7_precise``."""
-    rows = [precise_row(r) if variant == "precise" else r for r in ROWS if not tables or r.table in tables]
+    ``variant='precise'``: the arm rows on ``arm7_precise``; ``'faithful'``: every row in the thesis's plant
+    (:func:`faithful_row`)."""
+    change = {"precise": precise_row, "faithful": faithful_row}.get(variant, lambda r: r)
+    rows = [change(r) for r in ROWS if not tables or r.table in tables]
     if names:
         rows = [r for r in rows if r.id in names or r.name in names]
     return rows
@@ -587,11 +740,18 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--tables", nargs="+", default=None, choices=TABLES,
                    help="default: every table; rows run in this order (the report keeps the thesis's)")
     p.add_argument("--rows", nargs="+", default=None, help="only these rows (table/name or name; see --list)")
-    p.add_argument("--seeds", type=positive, default=3)
+    bench_seeds.add_args(p)
     p.add_argument("--preset", default="auto", choices=["auto", "thesis", "cpu", "fast"])
     p.add_argument("--variant", default="standard", choices=VARIANTS,
                    help="precise: the arm rows on arm7_precise (1 cm goal; met at >= 95 %% within 2 cm and >= 90 %% "
-                   "within 1 cm)")
+                   "within 1 cm); faithful: every row in the thesis's setting (the thesis preset, the unicycle's "
+                   "kinematic plant)")
+    p.add_argument("--faithful", default=None, metavar="JSON",
+                   help="a --variant faithful report whose rows fill the faithful column (default: "
+                   "<out>/thesis-<device>-thesis-faithful.json where it exists)")
+    p.add_argument("--regenerate", nargs="+", default=None, metavar="JSON",
+                   help="rewrite the markdown of these saved reports with this code (deviations, per-step errors, "
+                   "the faithful column); runs nothing")
     p.add_argument("--runs", default=None, help="run directories (default runs/thesis-<preset>[-precise])")
     p.add_argument("--out", default=RESULTS, help="where the report goes")
     p.add_argument("--smoke", action="store_true", help="tiny budgets: checks the plumbing, not the numbers")
@@ -609,11 +769,24 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                    help="with --parallel: GPU indices the row processes are spread over, one GPU each (default: "
                    "every process sees every visible device)")  # fmt: skip
     p.add_argument("--list", action="store_true", help="print the rows and their commands, run nothing")
-    p.add_argument("--commit", default="", help="commit to record (default: git's HEAD)")
+    provenance.add_args(p)
     argv = sys.argv[1:] if argv is None else list(argv)
     args = p.parse_args(argv)
+    if args.regenerate:
+        for path in args.regenerate:
+            regenerate(path, args.faithful, args.out)
+            print(f"rewrote {path[: -len('.json')]}.md")
+        return {}
+    if args.variant == "faithful":
+        if args.preset not in ("auto", "thesis"):
+            p.error(f"--variant faithful runs the thesis preset; --preset {args.preset} contradicts it")
+        args.preset = "thesis"
     args.preset = resolve_preset(args.preset)
-    suffix = "-precise" if args.variant == "precise" else ""
+    try:
+        seed_list = bench_seeds.seed_ids(args.purpose, args.seeds, args.first_seed)
+    except ValueError as e:
+        p.error(f"--seeds/--first-seed: {e}")
+    suffix = {"precise": "-precise", "faithful": "-faithful"}.get(args.variant, "")
     args.runs = args.runs or os.path.join("runs", f"thesis-{args.preset}{suffix}")
     rows = select(args.tables, args.rows, args.variant)
     if not rows:
@@ -630,21 +803,25 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     console = Console(stderr=True)
     if args.list:
         for r in rows:
-            flags = " ".join(command(r, args.preset, 0, args.smoke))
+            flags = " ".join(command(r, args.preset, seed_list[0], args.smoke))
             cmd = f"python -m train.{r.algo} {flags}" if r.algo else f"missing: {r.missing}"
             print(f"{r.id:24s} {r.label}: {cmd}")
         return {}
-    prov = provenance.record("benchmarks.thesis", argv, seeds=list(range(args.seeds)), commit=args.commit,
-                             run_directories=f"{args.runs}; each seed's eval.json and config.json kept under runs/")
+    prov = provenance.record("benchmarks.thesis", argv, seeds=bench_seeds.record(args.purpose, seed_list,
+                             "each row's train.<algo> --seed k"), allow_dirty=args.allow_dirty,
+                             run_directories=f"{args.runs}; each seed's eval.json, config.json and provenance.json "
+                             "kept under runs/")  # fmt: skip
+    faithful = args.faithful or os.path.join(args.out, f"thesis-{device_label()}-thesis-faithful.json")
     meta = {"device": device_label(), "preset": args.preset, "variant": args.variant, "seeds": args.seeds,
+            "purpose": args.purpose, "seed_ids": seed_list,
             "smoke": args.smoke, "together": args.together, "parallel": args.parallel,
             "command": "python -m benchmarks.thesis " + " ".join(argv), "jax": jax.__version__,
-            "commit": prov["commit"][:12],
-            "date": time.strftime("%Y-%m-%d %H:%M"), "provenance": prov}  # fmt: skip
+            "commit": prov["commit"][:12], "date": time.strftime("%Y-%m-%d %H:%M"), "provenance": prov,
+            **({"faithful": faithful} if args.variant != "faithful" and os.path.exists(faithful) else {})}  # fmt: skip
     stem = os.path.join(args.out, f"thesis-{device_label()}-{args.preset}{suffix}" + ("-smoke" if args.smoke else ""))
     if args.jobs < 1:
         raise SystemExit(f"error: --jobs {args.jobs} is out of range; allowed >= 1")
-    seeds = list(range(args.seeds))
+    seeds = seed_list
     size = len(seeds) if args.together else args.jobs
     # rows run in the order of --tables; the report keeps the thesis's order
     order = {t: k for k, t in enumerate(args.tables or [])}
@@ -658,6 +835,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         for seed, got in zip(group, got_all, strict=True):
             if "error" in got:
                 console.print(f"  [red]{row.id} seed {seed}: {got['error']}[/red]")
+            elif not got.get("skipped"):  # ran now: its commit and tree are this invocation's
+                got["provenance"] = mark_ran(got["run_dir"], prov)
             by_row[row.id].append(got)
             if got.get("run_dir") and not args.smoke:
                 provenance.keep_run(got["run_dir"], stem, os.path.relpath(got["run_dir"], args.runs))
@@ -699,12 +878,35 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     return {"meta": meta, "rows": results, "stem": stem}
 
 
+_DEVIATIONS: dict[tuple[str, str], dict[str, Any]] = {}
+"""Deviations per (row id, run directory) computed so far in this process (a report is rewritten after every row)."""
+
+
+def row_deviations(row: Row, seeds: list[dict], preset: str) -> dict[str, Any] | None:
+    """The row's deviations from the thesis's setting (:func:`benchmarks.deviations.row_deviations`) from the
+    ``config.json`` of its first finished seed; None before one finished."""
+    done = [s for s in seeds if "error" not in s and s.get("run_dir")]
+    if not done or not row.algo:
+        return None
+    key = (row.id, done[0]["run_dir"])
+    if key not in _DEVIATIONS:
+        path = os.path.join(done[0]["run_dir"], "config.json")
+        config = json.load(open(path)) if os.path.exists(path) else None
+        _DEVIATIONS[key] = deviations.row_deviations(row.algo, row.argv, row.kind, config, preset)
+    return _DEVIATIONS[key]
+
+
 def collect(rows: list[Row], by_row: dict[str, list[dict]], args: argparse.Namespace, meta: dict,
             t_start: float) -> list[dict]:  # fmt: skip
-    """Every row's seeds so far and its figure; sets ``meta``'s wall times."""
+    """Every row's seeds so far, its figure, provenance (:func:`row_provenance`) and deviations from the thesis's
+    setting (not for ``--smoke``); sets ``meta``'s wall times."""
     meta["wall_s"] = time.perf_counter() - t_start
-    results = [{"row": dataclasses.asdict(r), "command": command(r, args.preset, 0, args.smoke) if r.algo else [],
-                "seeds": by_row[r.id], "figure": row_figure(r, by_row[r.id])} for r in rows]  # fmt: skip
+    first = meta["seed_ids"][0]
+    results = [{"row": dataclasses.asdict(r), "command": command(r, args.preset, first, args.smoke) if r.algo else [],
+                "seeds": by_row[r.id], "figure": row_figure(r, by_row[r.id]),
+                "provenance": row_provenance(by_row[r.id]),
+                "deviations": None if args.smoke else row_deviations(r, by_row[r.id], args.preset)}
+               for r in rows]  # fmt: skip
     meta["runs_wall_s"] = float(sum(r["figure"].get("wall_s", 0.0) for r in results))
     return results
 

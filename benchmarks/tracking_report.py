@@ -20,7 +20,8 @@ import jax
 import numpy as np
 
 from benchmarks import provenance
-from benchmarks.arguments import nonnegative, positive
+from benchmarks import seeds as bench_seeds
+from benchmarks.arguments import nonnegative
 from benchmarks.train_throughput import RESULTS, device_label
 from train.common import parse_value
 
@@ -60,9 +61,9 @@ def pairs(items: Sequence[str]) -> dict[str, Any]:
 
 
 def add_common_args(p: argparse.ArgumentParser) -> None:
-    """The options every tracking benchmark has: seeds, preset, budget, overrides, label, commit, out."""
-    p.add_argument("--seeds", type=positive, default=3)
-    p.add_argument("--seed", type=nonnegative, default=0, help="the seeds' keys are split from this one")
+    """The options every tracking benchmark has: seeds (:func:`benchmarks.seeds.add_args`), preset, budget,
+    overrides, label, ``--allow-dirty``, out."""
+    bench_seeds.add_args(p)
     p.add_argument("--preset", default="auto")
     p.add_argument("--total-steps", type=nonnegative, default=0, help="override the preset's budget (0: keep it)")
     p.add_argument("--set", nargs="*", default=[], help="trainer config fields FIELD=VALUE")
@@ -95,13 +96,16 @@ def train_seeds(train: Callable, test: Callable, keys: jax.Array, vmapped: bool)
 
 
 def summarise(result: dict, metrics: dict, reward_key: str, **fields: Any) -> dict[str, Any]:
-    """One case's dict: ``fields`` plus the per-seed sums ``[S, 3]``, their mean, std and median, test steps
-    and the last chunk's ``metrics[reward_key]`` per seed."""
+    """One case's dict: ``fields`` plus the per-seed sums ``[S, 3]``, their mean, std and median, test steps,
+    the mean |error| per step (mean over seeds of each seed's sums over its steps) and the last chunk's
+    ``metrics[reward_key]`` per seed."""
     sums = np.asarray(result["sum_abs_error"])
+    steps = np.asarray(result["steps"], float).reshape(len(sums))
     return {
         **fields,
         "sums": sums.tolist(),
-        "steps": np.asarray(result["steps"]).tolist(),
+        "steps": steps.tolist(),
+        "per_step": (sums / steps[:, None]).mean(axis=0).tolist(),
         "mean": sums.mean(axis=0).tolist(),
         "std": sums.std(axis=0).tolist(),
         "median": np.median(sums, axis=0).tolist(),
@@ -109,22 +113,58 @@ def summarise(result: dict, metrics: dict, reward_key: str, **fields: Any) -> di
     }
 
 
+THESIS_ROWS = {("scara", "ddpg"): ("ddpg", ("--env", "scara")),
+               ("scara", "distributed"): ("ddpg", ("--env", "scara", "--distributed")),
+               ("scara", "td3"): ("td3", ("--env", "scara")),
+               ("scara", "distributed-td3"): ("td3", ("--env", "scara", "--distributed"))}
+"""(reference, method) -> (``train.<algo>``, the row's flags) for :func:`case_deviations`; the unicycle's cases
+follow from the reference (:func:`thesis_command`)."""
+
+
+def thesis_command(reference: str, method: str) -> tuple[str, tuple[str, ...]]:
+    """The ``train.<algo>`` and flags of a case's row of the thesis (TD3: the DDPG row with TD3's update)."""
+    if (reference, method) in THESIS_ROWS:
+        return THESIS_ROWS[(reference, method)]
+    env = ("--env", "unicycle", "--env-config", f"trajectory={reference}")
+    extra = {"distributed": ("--distributed",), "distributed-td3": ("--distributed",),
+             "two-stage": ("--pretrain", "action-search"), "lstm": ("--policy", "lstm")}.get(method, ())  # fmt: skip
+    algo = {"mlp": "ppo", "two-stage": "ppo", "lstm": "ppo", "td3": "td3", "distributed-td3": "td3"}.get(method, "ddpg")
+    return algo, (*env, *extra)
+
+
+def case_deviations(r: dict[str, Any]) -> str:
+    """A case's deviations from the thesis's setting in words (:mod:`benchmarks.deviations`): its recorded
+    ``algo_config`` and ``env_config`` against the thesis's; ``not recorded`` for a case that kept neither."""
+    from benchmarks import deviations
+
+    if "algo_config" not in r or "env_config" not in r:
+        return "not recorded (the case kept only part of its config)"
+    algo, argv = thesis_command(r["reference"], r["method"])
+    thesis_algo, thesis_env = deviations.thesis_setting(algo, argv, "tracking")
+    env = deviations.differences(r["env_config"], thesis_env, deviations.IGNORED | deviations.ROW_FIELDS)
+    return deviations.words(env, deviations.differences(r["algo_config"], thesis_algo))
+
+
 def to_markdown(result: dict[str, Any], title: str, intro: str, third: str = "θ") -> str:
-    """The results file: ``title``, ``intro``, then per case its row (mean ± std, each seed) and the
-    thesis's row for the method where the thesis has one (``r["thesis"]`` None: no row); ``third``
-    names the third axis."""
+    """The results file: ``title``, ``intro``, then per case its row (mean ± std, each seed, the test episode's
+    steps and the mean |error| per step) and the thesis's row for the method where the thesis has one
+    (``r["thesis"]`` None: no row), then each case's deviations from the thesis's setting; ``third`` names the
+    third axis."""
+    seeds = (bench_seeds.words(result["provenance"]["seeds"]) if "purpose" in result
+             else f"keys split from seed {result['seed']}")  # fmt: skip
     lines = [
         f"# {title} — {result['device']}",
         "",
         f"`{result['command']}` at commit {result['commit']} ({provenance.tree_words(result['provenance'])}; "
         f"jax {result['jax']}, {result['date']}). {intro} "
-        f"Keys split from seed {result['seed']}; per axis the sum over the test episode from t = 0 of "
-        "|error| (x, y m; θ rad or z m), mean ± std over seeds (median), each seed beside; goal: ½ of the "
-        "thesis's best over all its methods. Bold: at or below the goal.",
+        f"Seeds: {seeds}; per axis the sum over the test episode from t = 0 of "
+        "|error| (x, y m; θ rad or z m), mean ± std over seeds (median), each seed beside, the test episode's "
+        "steps and the mean |error| per step; goal: ½ of the thesis's best over all its methods. Bold: at or below "
+        "the goal.",
         "",
-        f"| reference | method | variant | x | y | {third} | seeds (x / y / {third}) | env steps "
-        "| train s (compile s) |",
-        "|---|---|---|---:|---:|---:|---|---:|---:|",
+        f"| reference | method | variant | x | y | {third} | per step x / y / {third} | test steps "
+        f"| seeds (x / y / {third}) | env steps | train s (compile s) |",
+        "|---|---|---|---:|---:|---:|---|---:|---|---:|---:|",
     ]
     for r in result["runs"]:
         cells = []
@@ -134,13 +174,23 @@ def to_markdown(result: dict[str, Any], title: str, intro: str, third: str = "θ
             median = f" ({r['median'][axis]:.2f})" if "median" in r else ""
             cells.append((f"**{text}**" if mean <= r["goal"][axis] else text) + median)
         per_seed = "; ".join(" / ".join(f"{v:.2f}" for v in s) for s in r["sums"])
+        steps = np.asarray(r.get("steps", []), float).ravel()
+        per_step = r.get("per_step")
+        if per_step is None and steps.size == len(r["sums"]):  # written before per_step was kept
+            per_step = (np.asarray(r["sums"]) / steps[:, None]).mean(axis=0).tolist()
+        step_cell = " / ".join(f"{v:.4f}" for v in per_step) if per_step else "not recorded"
+        steps_cell = "/".join(f"{v:.0f}" for v in dict.fromkeys(steps.tolist())) if steps.size else "not recorded"
         lines.append(
-            f"| {r['reference']} | {r['method']} | {r['label'] or '-'} | {' | '.join(cells)} | {per_seed} "
-            f"| {r['env_steps'] / 1e6:.3g} M | {r['train_s']:.0f} ({r['compile_s']:.0f}) |"
+            f"| {r['reference']} | {r['method']} | {r['label'] or '-'} | {' | '.join(cells)} | {step_cell} "
+            f"| {steps_cell} | {per_seed} | {r['env_steps'] / 1e6:.3g} M | {r['train_s']:.0f} ({r['compile_s']:.0f}) |"
         )
         if r.get("thesis"):
             t = r["thesis"]
-            lines.append(f"| {r['reference']} | thesis {r['method']} | | {t[0]} | {t[1]} | {t[2]} | | | |")
+            lines.append(f"| {r['reference']} | thesis {r['method']} | | {t[0]} | {t[1]} | {t[2]} | | | | | |")
+    lines += ["", "Deviations from the thesis's setting (the thesis's value → ours; the `thesis` preset and the "
+              "thesis's plant are the reference, `benchmarks/deviations.py`):", ""]  # fmt: skip
+    lines += [f"- {r['reference']} {r['method']}{' ' + r['label'] if r['label'] else ''}: {case_deviations(r)}"
+              for r in result["runs"]]  # fmt: skip
     lines.append("")
     return "\n".join(lines)
 
@@ -155,14 +205,16 @@ def run_cases(
 ) -> dict[str, Any]:
     """Run ``run_case(reference, method, args)`` for every case; write ``<device>-<name>[-label]``
     (json and markdown) under ``args.out`` after each.  Returns the whole result."""
-    seeds = f"{args.seeds} keys split from PRNGKey({args.seed})"
-    prov = provenance.record(f"benchmarks.{name}", argv, seeds=seeds, commit=args.commit)
+    args.seed_ids = bench_seeds.seed_ids(args.purpose, args.seeds, args.first_seed)
+    seeds = bench_seeds.record(args.purpose, args.seed_ids)
+    prov = provenance.record(f"benchmarks.{name}", argv, seeds=seeds, allow_dirty=args.allow_dirty)
     result = {
         "benchmark": name,
         "provenance": prov,
         "device": device_label(),
         "preset": args.preset,
-        "seed": args.seed,
+        "purpose": args.purpose,
+        "seed_ids": args.seed_ids,
         "command": prov["command"],
         "commit": prov["commit"],
         "jax": jax.__version__,
@@ -202,5 +254,9 @@ def cli(
     argv = list(sys.argv[1:] if argv is None else argv)
     args = p.parse_args(argv)
     args.preset = resolve_preset(args.preset)
+    try:
+        bench_seeds.seed_ids(args.purpose, args.seeds, args.first_seed)
+    except ValueError as e:
+        p.error(f"--seeds/--first-seed: {e}")
     cases = [(r, m) for r in getattr(args, flag) for m in args.methods]
     return run_cases(name, args, argv, cases, run_case, markdown)

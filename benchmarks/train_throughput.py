@@ -146,7 +146,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     provenance.add_args(p)
     args = p.parse_args(argv)
     prov = provenance.record("benchmarks.train_throughput", argv, seeds=SEEDS,
-                             commit=args.commit)  # fmt: skip
+                             allow_dirty=args.allow_dirty)  # fmt: skip
     mode = args.mode or ("kinematic" if on_cpu else "pd")
     env = envs_mjx.make("arm7", mode=mode)
     runs = []

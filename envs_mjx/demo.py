@@ -4,7 +4,8 @@
 parallel lanes per physics mode, the action being the largest step ``C`` allows along the straight
 line to the goal, and prints the success rate, the mean extra distance (path length minus the
 straight start-goal distance, successful episodes), the mean episode length and the control steps
-per second (after compilation).
+per second (after compilation). ``python -m benchmarks.arm7_greedy`` runs the same controller and writes
+its results file with the run's provenance.
 
 ``racecar``: the scripted expert driver (:func:`envs_mjx.racecar.expert_action`) races one lap
 among the nine opponents on each of ``--roads`` in ``--lanes`` parallel episodes, prints the lap
@@ -20,9 +21,7 @@ step), and a picture of the four roads beside twelve of the generated training r
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import subprocess
 import sys
 import time
 
@@ -309,8 +308,6 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--gif-stride", type=int, default=5, help="racecar: control steps per animation frame")
     parser.add_argument("--no-gif", dest="gif", action="store_false", help="racecar: skip the animation")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--results", default=None,
-                        help="arm7: also write the table as <device>-arm7_greedy.json and .md into this folder")
     argv = sys.argv[1:] if argv is None else list(argv)
     args = parser.parse_args(argv)
     if args.env == "racecar":
@@ -327,37 +324,6 @@ def main(argv: list[str] | None = None) -> None:
             f"{mode:<10} {r['success']:>8.1%} {r['extra']:>10.4f} {r['length']:>9.1f}"
             f" {r['steps_per_s']:>10.0f} {r['compile_s']:>12.1f}"
         )
-    if args.results:
-        write_greedy_results(args.results, rows, args.lanes, args.seed, argv)
-
-
-def write_greedy_results(folder: str, rows: list[dict], lanes: int, seed: int, argv: list[str]) -> str:
-    """Write the greedy controller's table with its provenance (command, seed, commit, device, date)
-    as ``<device>-arm7_greedy.json`` and ``.md`` in ``folder``; returns the path stem."""
-    d = jax.devices()[0]
-    device = (f"cpu-{os.cpu_count()}core" if d.platform == "cpu" else f"{d.platform}-{d.device_kind}")
-    device = device.replace(" ", "_").lower()
-    git = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
-    meta = {"command": "python -m envs_mjx.demo " + " ".join(argv), "lanes": lanes, "seed": seed,
-            "commit": git.stdout.strip() or "unknown", "device": device, "jax": jax.__version__,
-            "date": time.strftime("%Y-%m-%d %H:%M")}  # fmt: skip
-    os.makedirs(folder, exist_ok=True)
-    stem = os.path.join(folder, f"{device}-arm7_greedy")
-    with open(stem + ".json", "w") as f:
-        json.dump({**meta, "rows": rows}, f, indent=1)
-    lines = [f"# arm7: greedy straight-to-goal controller — {device}", "",
-             f"`{meta['command']}` at commit {meta['commit']} (jax {meta['jax']}, {meta['date']}); one episode "
-             f"on each of {lanes} lanes per mode, keys from seed {seed}. The action is the largest step C allows "
-             "along the straight line to the goal; extra distance = path length − straight start-goal distance "
-             "(successful episodes); steps/s after compilation.", "",
-             "| mode | success | extra distance (m) | steps per episode | control steps/s | compile s |",
-             "|---|---:|---:|---:|---:|---:|"]  # fmt: skip
-    for r in rows:
-        lines.append(f"| {r['mode']} | {r['success']:.1%} | {r['extra']:.4f} | {r['length']:.1f} "
-                     f"| {r['steps_per_s']:,.0f} | {r['compile_s']:.1f} |")  # fmt: skip
-    with open(stem + ".md", "w") as f:
-        f.write("\n".join(lines) + "\n")
-    return stem
 
 
 if __name__ == "__main__":

@@ -27,8 +27,8 @@ def test_table_3_1_smoke_report_resume_and_missing_rows(tmp_path, monkeypatch, c
         her, k = flags["--her"], int(flags.get("--her-k", 2))
         assert (cfg["ddpg"]["her"], cfg["ddpg"]["her_k"], cfg["ddpg"]["per"]) == (her, k, "--per" in r.argv), r.id
         assert cfg["args"]["reward"] == flags["--reward"] and cfg["ddpg"]["epochs"] == 1, r.id
-    argv = ["--tables", "3.1", "--rows", "sparse-final", "sparse-future2", "--seeds", "1", "--smoke", "--preset", "cpu",
-            "--quiet", "--runs", runs, "--out", out]  # fmt: skip
+    argv = ["--allow-dirty", "--tables", "3.1", "--rows", "sparse-final", "sparse-future2", "--seeds", "1", "--smoke",
+            "--preset", "cpu", "--quiet", "--runs", runs, "--out", out]  # fmt: skip
     result = thesis.main(argv)
     rows = result["rows"]
     assert [r["row"]["name"] for r in rows] == ["sparse-final", "sparse-future2"]
@@ -53,6 +53,11 @@ def test_table_3_1_smoke_report_resume_and_missing_rows(tmp_path, monkeypatch, c
     again = thesis.main(argv)
     seeds = {r["row"]["name"]: r["seeds"][0] for r in again["rows"]}
     assert seeds["sparse-future2"].get("skipped") and not seeds["sparse-final"].get("skipped")
+    # the skipped seed keeps the commit it ran at (its run directory's provenance.json), a row says which
+    commit = result["meta"]["provenance"]["commit"]
+    assert seeds["sparse-future2"]["provenance"]["commit"] == commit
+    assert {r["row"]["name"]: r["provenance"]["missing"] for r in again["rows"]} == {"sparse-final": 0,
+                                                                                  "sparse-future2": 0}
     assert seeds["sparse-final"]["run_dir"] == dirs["sparse-final"]
     assert os.path.exists(os.path.join(dirs["sparse-final"], "eval.json"))
     assert os.path.getmtime(os.path.join(dirs["sparse-future2"], "eval.json")) == before
@@ -102,7 +107,7 @@ def test_table_3_1_smoke_report_resume_and_missing_rows(tmp_path, monkeypatch, c
     # a row whose algorithm does not exist is reported as missing, never run
     absent = thesis.Row("3.1", "absent", "an algorithm not built", None, (), 50, "arm", missing="not built")
     monkeypatch.setattr(thesis, "ROWS", (*thesis.ROWS, absent))
-    missing = thesis.main(["--rows", "3.1/absent", "--seeds", "1", "--runs", runs, "--out", out])
+    missing = thesis.main(["--allow-dirty", "--rows", "3.1/absent", "--seeds", "1", "--runs", runs, "--out", out])
     md = open(missing["stem"] + ".md").read()
     assert md.count("**missing**") == 1 and "not built" in md
     assert not os.path.exists(os.path.join(runs, "3.1", "absent"))
@@ -198,8 +203,8 @@ def test_row_processes_share_gpus_round_robin():
 
 
 def test_every_arm_row_of_a_table_has_the_same_columns(tmp_path):
-    """The 5 cm arm table: every row (not only the first) gives mean ± std, the seeds, met, and success at
-    2 cm / 1 cm, in the header's eight columns."""
+    """The 5 cm arm table: every row (not only the first) gives the faithful column (here not run), mean ± std,
+    the seeds, met, and success at 2 cm / 1 cm, in the header's nine columns."""
     rows = thesis.select(["5.1"], None)
 
     def seed(at5, at2, at1, k):
@@ -212,5 +217,7 @@ def test_every_arm_row_of_a_table_has_the_same_columns(tmp_path):
         results.append({"row": dataclasses.asdict(row), "command": list(row.argv), "seeds": seeds,
                         "figure": thesis.row_figure(row, seeds)})  # fmt: skip
     lines = [x for x in thesis.table_markdown("5.1", results, str(tmp_path), "figs") if x.startswith("| Distributed")]
-    assert [x.split(" | ")[2:6] for x in lines] == [["**98.0 ± 0.0**", "98; 98 (2/2)", "yes", "25.0 / 2.0"],
-                                                    ["**99.0 ± 0.0**", "99; 99 (2/2)", "yes", "54.0 / 10.0"]]
+    assert [x.split(" | ")[2:7] for x in lines] == [["not run", "**98.0 ± 0.0**", "98; 98 (2/2)", "yes", "25.0 / 2.0"],
+                                                    ["not run", "**99.0 ± 0.0**", "99; 99 (2/2)", "yes", "54.0 / 10.0"]]
+    header = next(x for x in thesis.table_markdown("5.1", results, str(tmp_path), "figs") if x.startswith("| row"))
+    assert all(x.count(" | ") == header.count(" | ") for x in lines)

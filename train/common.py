@@ -915,6 +915,14 @@ def env_overrides(args: Any) -> dict[str, Any]:
     return out
 
 
+def env_record(name: str, env: Any) -> dict[str, Any]:
+    """``config.json``'s record of the env a run built: its name and every field of its config (the env's
+    defaults with the preset's and the command line's settings over them; None for an env without a config
+    dataclass, e.g. brax's), so that a run's setting can be read back whole."""
+    config = getattr(env, "config", None)
+    return {"name": name, "config": dataclasses.asdict(config) if dataclasses.is_dataclass(config) else None}
+
+
 def make_env(name: str, overrides: dict[str, Any]) -> Env:
     """An unbatched env: ``envs_mjx.make(name, **overrides)`` or ``brax.envs.get_environment``."""
     import envs_mjx
@@ -1181,6 +1189,7 @@ class AlgorithmCLI:
             "iterations_per_chunk": per_chunk,
             "devices": mesh.shape[parallel.LANES],
             "processes": jax.process_count(),
+            "env": env_record(args.env, env),
         }
         return env, trainer, config
 
