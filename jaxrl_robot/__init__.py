@@ -17,6 +17,7 @@ from jaxrl_robot.networks import *  # noqa: E402, F403  (networks.__all__, liste
 from jaxrl_robot.noise import make_gaussian_noise, make_ou_noise  # noqa: E402
 from jaxrl_robot.replay import make_her, make_prioritized_replay, make_uniform_replay  # noqa: E402
 from jaxrl_robot.returns import gae, lambda_returns, n_step_returns, td_errors  # noqa: E402
+from jaxrl_robot.runs import load_policy  # noqa: E402
 from jaxrl_robot.types import RecurrentPolicy, RunningStats, Trainer, Transition  # noqa: E402
 
 __all__ = [
@@ -33,6 +34,8 @@ __all__ = [
     "RunningStats",
     "Trainer",
     "Transition",
+    # a trained policy and its env from a run directory of python -m train.<algo>
+    "load_policy",
     # evaluation
     "run_test_episodes",
     "summarize_episodes",

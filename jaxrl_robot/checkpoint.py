@@ -280,11 +280,12 @@ class Checkpointer:
             return {}
         return dict(out["record"] or {})
 
-    def restore_latest(self, target: Any = None) -> Restored | None:
+    def restore_latest(self, target: Any = None, set_aside: bool = True) -> Restored | None:
         """Restore the newest checkpoint that is not damaged (None: there is no checkpoint).
 
         Damaged newer checkpoints are moved to ``<directory>.damaged/<step>`` (by process 0) once a
         good one is restored, so that the run can write those steps again; ``note`` says which.
+        With ``set_aside=False`` nothing is moved (a reader that does not continue the run).
 
         Raises:
           CheckpointDamagedError: every checkpoint is damaged (nothing is moved).
@@ -304,6 +305,8 @@ class Checkpointer:
             if damaged:
                 note = "; ".join(str(e) for e in damaged) + f"; resuming from {step}"
                 note += "" if verified else f" (unverified: it has no {CHECKSUMS})"
+                if not set_aside:
+                    return Restored(step, state, record, note)
                 if jax.process_index() == 0:
                     for e in damaged:
                         self._set_aside(e.step)
