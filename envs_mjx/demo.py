@@ -81,8 +81,9 @@ def run(mode: str, lanes: int, seed: int) -> dict[str, float]:
     }
 
 
-def make_race_rollout(env, lanes: int):
-    """``rollout(key) -> (final State [lanes], records)``: the expert drives until each lane's episode ends.
+def make_race_rollout(env, lanes: int, act=None):
+    """``rollout(key) -> (final State [lanes], records)``: ``act(env, state) -> action [3]`` (default: the
+    expert, :func:`envs_mjx.racecar.expert_action`) drives until each lane's episode ends.
 
     ``records`` holds per step ``[T, lanes, ...]``: our ``pos`` (2), ``yaw``, ``speed`` (v_x),
     ``progress``, arc length ``s``, ``lateral`` offset and ``rank``, the opponents' ``opp_pos``
@@ -91,12 +92,14 @@ def make_race_rollout(env, lanes: int):
     """
     from envs_mjx.racecar import expert_action
 
+    act = expert_action if act is None else act
+
     def one(key):
         state = env.reset(key)
 
         def body(carry, _):
             state, done = carry
-            nxt = env.step(state, expert_action(env, state))
+            nxt = env.step(state, act(env, state))
             nxt = jax.tree.map(lambda a, b: jnp.where(done > 0, a, b), state, nxt)
             rs = nxt.pipeline_state
             opp_pos, opp_yaw, _ = env.opponent_poses(rs)
@@ -135,7 +138,6 @@ def race_figures(env, rec: dict, out_dir: str, road: str, summary: str, gif_stri
     import numpy as np
     from matplotlib.collections import LineCollection
 
-    cfg = env.config
     track = env.track
     r = {k: np.asarray(v)[:, 0] for k, v in rec.items()}
     steps = max(int(r["live"].sum()), 1)
@@ -195,7 +197,32 @@ def race_figures(env, rec: dict, out_dir: str, road: str, summary: str, gif_stri
         return paths
     from matplotlib.animation import FuncAnimation, PillowWriter
 
-    fig, ax = plt.subplots(figsize=(5, 5))
+    fig, draw = chase_view(env, r, steps)
+    anim = FuncAnimation(fig, draw, frames=list(range(0, steps, max(gif_stride, 1))), blit=False)
+    gif = os.path.join(out_dir, f"racecar-{road}.gif")
+    anim.save(gif, writer=PillowWriter(fps=10))
+    plt.close(fig)
+    paths.append(gif)
+    return paths
+
+
+def chase_view(env, r: dict, steps: int, size: float = 5.0):
+    """``(figure, draw)``: the chase view of one episode, ``draw(k)`` showing step ``k < steps`` (the road
+    140 m around our car, the last 100 steps of our path, every car, the time and our speed).
+
+    ``r`` holds one lane's records of :func:`make_race_rollout` (host arrays ``[T, ...]``); ``size``: inches.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    cfg = env.config
+    left, right = np.asarray(env.track.left), np.asarray(env.track.right)
+    loop = lambda a: np.concatenate([a, a[:1]])  # noqa: E731
+    pos, speed = r["pos"][:steps], r["speed"][:steps] * 3.6
+    fig, ax = plt.subplots(figsize=(size, size))
     ax.fill(*loop(right).T, color="0.85", zorder=0)
     ax.fill(*loop(left).T, color="white", zorder=0)
     ax.plot(*loop(left).T, "k", lw=0.8)
@@ -205,7 +232,6 @@ def race_figures(env, rec: dict, out_dir: str, road: str, summary: str, gif_stri
     ours = ax.fill([], [], color="tab:red")[0]
     opps = [ax.fill([], [], color="tab:blue")[0] for _ in range(r["opp_pos"].shape[1])]
     text = ax.text(0.02, 0.97, "", transform=ax.transAxes, va="top", fontsize=8)
-    frames = list(range(0, steps, max(gif_stride, 1)))
 
     def draw(k):
         p = pos[k]
@@ -218,12 +244,7 @@ def race_figures(env, rec: dict, out_dir: str, road: str, summary: str, gif_stri
         text.set_text(f"t = {k * cfg.dt:5.1f} s   {speed[k]:5.1f} km/h")
         return [trail, ours, text, *opps]
 
-    anim = FuncAnimation(fig, draw, frames=frames, blit=False)
-    gif = os.path.join(out_dir, f"racecar-{road}.gif")
-    anim.save(gif, writer=PillowWriter(fps=10))
-    plt.close(fig)
-    paths.append(gif)
-    return paths
+    return fig, draw
 
 
 def roads_figure(out_dir: str, generated: int = 12, family_seed: int = 0) -> str:

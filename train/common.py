@@ -117,6 +117,9 @@ __all__ = [
     "env_overrides",
     "episode_length",
     "evaluate",
+    "evaluate_state",
+    "evaluation_key",
+    "evaluation_title",
     "is_main_process",
     "is_tracking_env",
     "iterations_per_chunk",
@@ -473,6 +476,28 @@ def _compiled_episodes(future: Future | None) -> Callable[..., Any] | None:
     return lambda k, state: compiled(k, state)
 
 
+def evaluation_key(seed: int) -> jax.Array:
+    """The key of the final evaluation of the run of ``--seed seed`` (a stream apart from training's)."""
+    return jax.random.fold_in(jax.random.PRNGKey(seed), EVAL_KEY_OFFSET)
+
+
+def evaluate_state(
+    spec: RunSpec, key: jax.Array, state: Any, run_dir: str | None = None, compiled: Callable[..., Any] | None = None
+) -> dict[str, Any]:
+    """The final evaluation (:func:`evaluate`) of one seed's ``state``: ``spec.trainer.policy(state)`` on
+    ``spec.env`` over ``spec.eval_episodes`` episodes; ``compiled``: :func:`compile_evaluation_async`'s program
+    (``(key, state=…) -> episodes``, None: compiled here); tracking figures drawn into ``run_dir`` if given."""
+    return evaluate(
+        key, spec.env, spec.trainer.policy(state), spec.eval_episodes, run_dir, spec.episode_length,
+        episodes_fn=None if compiled is None else functools.partial(compiled, state=state), precision=spec.precision,
+    )  # fmt: skip
+
+
+def evaluation_title(algo: str, env_name: str, seed: int | None = None) -> str:
+    """The title of the evaluation table: ``"ppo on arm7: evaluation"`` (``seed``: one seed of several)."""
+    return f"{algo} on {env_name}" + ("" if seed is None else f", seed {seed}") + ": evaluation"
+
+
 def _print_table(title: str, rows: dict[str, Any]) -> None:
     from rich.console import Console
     from rich.table import Table
@@ -682,7 +707,7 @@ def _run_locked(spec: RunSpec, run_dir: str) -> dict[str, Any]:
         stop_chunk = min(stop_chunk, max(chunk + 1, math.ceil(spec.stop_after_steps / steps_per)))
     show = main and (use_progress_bar() if spec.progress is None else spec.progress)
     bar = _Progress(show, total_steps, chunk * steps_per)
-    eval_keys = [jax.random.fold_in(jax.random.PRNGKey(k), EVAL_KEY_OFFSET) for k in seeds]
+    eval_keys = [evaluation_key(k) for k in seeds]
     will_evaluate = stop_chunk >= trainer.num_updates and chunk < stop_chunk
     eval_future = (
         compile_evaluation_async(spec, eval_keys[0], program.view(_local_view(state), 0)) if will_evaluate else None
@@ -750,12 +775,7 @@ def _run_locked(spec: RunSpec, run_dir: str) -> dict[str, Any]:
     compiled = _compiled_episodes(eval_future)
     summaries = []
     for i, (key, d) in enumerate(zip(eval_keys, seed_dirs, strict=True)):
-        view = program.view(local_state, i)
-        summaries.append(evaluate(
-            key, spec.env, trainer.policy(view), spec.eval_episodes, d if main else None, spec.episode_length,
-            episodes_fn=None if compiled is None else functools.partial(compiled, state=view),
-            precision=spec.precision,
-        ))  # fmt: skip
+        summaries.append(evaluate_state(spec, key, program.view(local_state, i), d if main else None, compiled))
     result["eval_s"] = time.perf_counter() - t_eval
     result["compile"] = compile_log().since(spec.compile_mark)
     result["wall_s"] = wall_before + time.perf_counter() - t0
@@ -769,7 +789,7 @@ def _run_locked(spec: RunSpec, run_dir: str) -> dict[str, Any]:
         shared = {k: v for k, v in result.items() if k not in ("eval", "seeds")}
         for k, d, summary in zip(seeds, seed_dirs, summaries, strict=True):
             _write_json(os.path.join(d, "eval.json"), {**summary, **shared, **({"seed": k} if several else {})})
-            title = f"{spec.algo} on {spec.env_name}" + (f", seed {k}" if several else "") + ": evaluation"
+            title = evaluation_title(spec.algo, spec.env_name, k if several else None)
             _print_table(title, {**summary, "env_steps": result["env_steps"], "wall_s": round(result["wall_s"], 1)})
     ckpt.close()
     return result
