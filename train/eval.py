@@ -72,7 +72,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default=None, metavar="FILE", help="also write the results to FILE (JSON)")
     p.add_argument("--video", default=None, metavar="FILE", help="write test episodes as a video: FILE.gif or FILE.mp4")
     p.add_argument("--video-episodes", type=_count(1), default=1,
-                   help="episodes in the video: the evaluation's first ones (tracking envs: the test episode)")
+                   help="episodes in the video: the evaluation's first ones, if no more than --episodes (tracking "
+                        "envs: the test episode)")
     p.add_argument("--video-size", default="320x240", metavar="WxH", help="video frame size in pixels")
     p.add_argument("--video-stride", type=_count(1), default=1, help="draw every n-th step")
     return p  # fmt: skip
@@ -113,6 +114,8 @@ def _evaluate(args: argparse.Namespace) -> int:
     size = _size(args.video_size) if args.video else None
     if args.video:
         video.check_video_path(args.video)
+    for option, path in (("--out", args.out), ("--video", args.video)):
+        _make_folder(option, path)  # before anything is evaluated
     enable_persistent_cache(resolve_cache_dir("auto"))  # the training's evaluation program may be cached
     run = runs.load_run(args.run_dir, step=args.step)
     if run.note:
@@ -154,8 +157,25 @@ def _evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _make_folder(option: str, path: str | None) -> None:
+    """Make the folder of ``path`` (given by ``option``; None: nothing to do).
+
+    Raises:
+      ValueError: it cannot be made (one line naming the option and the path).
+    """
+    if path is None:
+        return
+    folder = os.path.dirname(os.path.abspath(path))
+    try:
+        os.makedirs(folder, exist_ok=True)
+    except FileExistsError:
+        raise ValueError(f"{option} {path!r}: cannot write it ({folder} is a file)") from None
+    except OSError as e:
+        raise ValueError(f"{option} {path!r}: cannot write it ({e.strerror or e})") from None
+
+
 def _write_json(path: str, obj: Any) -> None:
-    """``obj`` as JSON (``train.common``'s: non-finite floats as null), the folder made if needed.
+    """``obj`` as JSON (``train.common``'s: non-finite floats as null).
 
     Raises:
       ValueError: the file cannot be written (one line naming it).
@@ -163,7 +183,6 @@ def _write_json(path: str, obj: Any) -> None:
     from train import common
 
     try:
-        os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
         common._write_json(path, obj)
     except OSError as e:
         raise ValueError(f"--out {path!r}: cannot write it ({e.strerror or e})") from None
