@@ -20,6 +20,7 @@ from __future__ import annotations
 import contextlib
 import ctypes.util
 import importlib
+import math
 import os
 import warnings
 from collections.abc import Callable, Iterator, Sequence
@@ -53,6 +54,9 @@ VIDEO_FORMATS = (".gif", ".mp4")
 
 GL_LIBRARIES = {"egl": ("libEGL", "libegl1"), "osmesa": ("libOSMesa", "libosmesa6"), "glfw": ("GLFW", "libglfw3")}
 """``MUJOCO_GL`` backend → (the library it needs, its Debian/Ubuntu package)."""
+
+MAX_FPS = 50.0
+"""Frames per second a video plays at most by default (GIF's frame times are whole hundredths of a second)."""
 
 GOAL_RGBA = np.array([0.1, 0.35, 0.95, 0.45], np.float32)
 """Colour of the goal marker (blue, translucent: the end effector shows inside it)."""
@@ -367,7 +371,7 @@ def write_video(path: str, frames: Sequence[np.ndarray], fps: float, colors: int
         sample = frames[:: max(len(frames) // 16, 1)]  # the palette of frames from the whole video
         palette = Image.fromarray(np.concatenate(sample, axis=0)).quantize(colors=colors, dither=Image.Dither.NONE)
         pictures = [p.quantize(palette=palette, dither=Image.Dither.NONE) for p in pictures]
-        duration = max(int(round(1000 / fps)), 20)  # ms; GIF viewers slow down anything shorter
+        duration = max(int(round(1000 / fps)), 20)  # ms; GIF viewers slow down anything shorter than 20
         pictures[0].save(path, save_all=True, append_images=pictures[1:], duration=duration, loop=0)
         return
     import imageio.v2 as imageio
@@ -386,7 +390,7 @@ def episode_video(
     keys: jax.Array,
     width: int = 320,
     height: int = 240,
-    stride: int = 1,
+    stride: int | None = None,
     episode_length: int = 0,
     hold_s: float = 0.5,
 ) -> int:
@@ -398,7 +402,8 @@ def episode_video(
       policy: the deterministic policy, ``obs [E, D] -> action [E, A]`` or a recurrent one.
       keys: ``[E, 2]`` reset keys, one episode each (racecar: one lap each on the env's road).
       width, height: pixels (racecar: square frames of ``width``).
-      stride: draw every ``stride``-th step (the video plays ``stride`` times fewer frames per second).
+      stride: draw every ``stride``-th step (the video plays ``stride`` times fewer frames per second); None:
+        the smallest that plays at most :data:`MAX_FPS` frames per second (1 for arm7's 20 control steps a second).
       episode_length: step limit (0: the env's).
       hold_s: seconds the last frame of each episode is held.
     Returns:
@@ -407,10 +412,11 @@ def episode_video(
       ValueError: a bad suffix or size; RenderError: no OpenGL, no MP4 writer or nothing to draw the env with.
     """
     check_video_path(path)
+    dt = float(getattr(env, "dt", None) or getattr(getattr(env, "config", None), "dt", None) or 0.05)
+    stride = max(1, math.ceil(1.0 / dt / MAX_FPS - 1e-9)) if stride is None else stride
     if width < 16 or height < 16 or stride < 1:
         raise ValueError(f"video size {width}x{height} and stride {stride}: allowed >= 16 pixels, stride >= 1")
-    dt = getattr(env, "dt", None) or getattr(getattr(env, "config", None), "dt", None) or 0.05
-    fps = 1.0 / float(dt) / stride
+    fps = 1.0 / dt / stride
     from envs_mjx.racecar import RaceCar
 
     if isinstance(env, RaceCar):

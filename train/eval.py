@@ -75,7 +75,8 @@ def parser() -> argparse.ArgumentParser:
                    help="episodes in the video: the evaluation's first ones, if no more than --episodes (tracking "
                         "envs: the test episode)")
     p.add_argument("--video-size", default="320x240", metavar="WxH", help="video frame size in pixels")
-    p.add_argument("--video-stride", type=_count(1), default=1, help="draw every n-th step")
+    p.add_argument("--video-stride", type=_count(1), default=None,
+                   help="draw every n-th step; default: the fewest that play at most 50 frames a second")
     return p  # fmt: skip
 
 
