@@ -5,7 +5,7 @@ A run directory (``runs/<algo>-<env>-<time>/``, written by ``python -m train.<al
 ``checkpoints/<chunk>/``, the whole train state every few chunks.  A run of ``--seeds n`` trains the seeds
 ``seed … seed + n − 1`` together; its ``seed<k>/`` folders hold each seed's metrics and ``config.json``.
 
->>> import jaxrl_robot
+>>> import jax, jaxrl_robot
 >>> policy, env = jaxrl_robot.load_policy("runs/ppo-arm7-20260101-120000")
 >>> state = env.reset(jax.random.PRNGKey(0))
 >>> state = env.step(state, policy(state.obs))          # obs [D] or [..., D] -> action [A] or [..., A]

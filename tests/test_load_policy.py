@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from jaxrl_robot import runs
-from jaxrl_robot.checkpoint import CheckpointDamagedError
+from jaxrl_robot.checkpoint import CheckpointDamagedError, CheckpointMismatchError
 from jaxrl_robot.types import RecurrentPolicy
 from tests.run_dirs import make_run, state_after
 from train import a2c as a2c_cli
@@ -152,4 +152,13 @@ def test_what_is_no_loadable_run_is_a_one_line_error(tmp_path, ppo_run):
         assert "\n" not in str(info.value)
     with pytest.raises(runs.RunLoadError, match=r": no checkpoint 9; saved: 1, 2$"):
         runs.load_policy(run_dir, step=9, seed=4)
+    edited = tmp_path / "edited"  # config.json changed after the checkpoints were written
+    shutil.copytree(run_dir, edited)
+    config = json.loads((edited / "config.json").read_text())
+    config["ppo"]["num_envs"] = 8
+    (edited / "config.json").write_text(json.dumps(config))
+    message = (r"edited: config.json does not match checkpoint 2: 0\.env_state\..* has shape \(4, 1\) saved, \(8, 1\) "
+               r"now;.* \(config.json changed since: ppo.num_envs 4 then, 8 now\)$")
+    with pytest.raises(CheckpointMismatchError, match=message):
+        runs.load_policy(str(edited), seed=4)
     assert not os.path.exists(stopped / "checkpoints")  # looking did not make the folder

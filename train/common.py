@@ -128,6 +128,7 @@ __all__ = [
     "lock_run_dir",
     "make_env",
     "make_run_dir",
+    "mismatch_error",
     "preparse",
     "restore_run",
     "run",
@@ -641,14 +642,22 @@ def restore_run(ckpt: Checkpointer, state: Any, run_dir: str, config: dict[str, 
     try:
         restored = ckpt.restore_latest(state)
     except CheckpointMismatchError as e:
-        saved = _jsonable(ckpt.read_record(e.step).get("config") or {})
-        changed = _changed_fields(saved, _jsonable(config)) if saved else []
-        hint = f" (config.json changed since: {'; '.join(changed[:3])})" if changed else ""
-        message = f"--resume {run_dir}: config.json does not match checkpoint {e.step}: {e.listed()}{hint}"
-        raise CheckpointMismatchError(e.step, e.differences, message) from None
+        raise mismatch_error(ckpt, e, f"--resume {run_dir}", config) from None
     if restored is not None and restored.note and is_main_process():
         print(restored.note, file=sys.stderr, flush=True)
     return restored
+
+
+def mismatch_error(
+    ckpt: Checkpointer, e: CheckpointMismatchError, where: str, config: dict[str, Any]
+) -> CheckpointMismatchError:
+    """``e`` (``config`` no longer builds the state saved at ``e.step``) as one line: ``where``, the arrays
+    that differ and the fields of ``config`` changed since the checkpoint was written (its record's config)."""
+    saved = _jsonable(ckpt.read_record(e.step).get("config") or {})
+    changed = _changed_fields(saved, _jsonable(config)) if saved else []
+    hint = f" (config.json changed since: {'; '.join(changed[:3])})" if changed else ""
+    message = f"{where}: config.json does not match checkpoint {e.step}: {e.listed()}{hint}"
+    return CheckpointMismatchError(e.step, e.differences, message)
 
 
 def _changed_fields(saved: dict[str, Any], now: dict[str, Any], prefix: str = "") -> list[str]:

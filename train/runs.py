@@ -120,21 +120,18 @@ def load_run(
     # trained them, which 'auto' resolved there; the other one is tried if this machine resolves it otherwise
     first = common.resolve_seed_map(args.seed_map)
     mappings = [first] if len(trained) == 1 else [first, "loop" if first == "vmap" else "vmap"]
+    mismatches: list[CheckpointMismatchError] = []
     try:
-        for i, mapping in enumerate(mappings):
+        for mapping in mappings:
             program = common.SeedProgram.of(trainer, len(trained), mapping)
             target = _abstract(jax.eval_shape(lambda p=program: p.init(trained)))
             try:
                 restored = _restore(ckpt, step, target)
                 break
             except CheckpointMismatchError as e:
-                if i + 1 < len(mappings):
-                    continue
-                saved = common._jsonable(ckpt.read_record(e.step).get("config") or {})
-                changed = common._changed_fields(saved, common._jsonable(config)) if saved else []
-                hint = f" (config.json changed since: {'; '.join(changed[:3])})" if changed else ""
-                message = f"{run_dir}: config.json does not match checkpoint {e.step}: {e.listed()}{hint}"
-                raise CheckpointMismatchError(e.step, e.differences, message) from None
+                mismatches.append(e)
+        else:  # told as this machine's mapping sees it
+            raise common.mismatch_error(ckpt, mismatches[0], run_dir, config) from None
     finally:
         ckpt.close()
     states = {k: program.view(restored.state, trained.index(k)) for k in seeds}
