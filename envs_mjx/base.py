@@ -16,6 +16,9 @@ Conventions shared by all environments:
   complex actions raise the same error.  See :func:`check_action`.
 * ``state.info`` keeps every key it came in with (brax wrappers add their own), so an
   environment's ``step`` updates ``info`` rather than rebuilding it.
+* A state's physics is brax's ``pipeline_state`` or, for a state of MuJoCo Playground's kind,
+  ``data``: the wrappers read and replace it through :func:`physics_of` / :func:`with_physics`, so they
+  also take such states (``envs_mjx.playground`` presents Playground's envs as brax ``Env`` s).
 * ``state.info["params"]`` holds *episode parameters*: traced values that a trainer may
   change during training without recompiling (for example the reference-state window
   of the tracking environments).  ``reset(key, params)`` takes them and they survive
@@ -63,7 +66,9 @@ __all__ = [
     "VmapWrapper",
     "check_action",
     "map_lanes",
+    "physics_of",
     "sanitize_action",
+    "with_physics",
     "wrap_for_training",
 ]
 
@@ -167,6 +172,21 @@ class RobotEnv(Env, abc.ABC):
     @abc.abstractmethod
     def step(self, state: State, action: jax.Array) -> State:
         """Advance one control step with ``action [A]`` in [-1, 1]^A; first :meth:`check_action`."""
+
+
+def _physics_field(state: Any) -> str:
+    """The field holding a state's physics: ``pipeline_state`` (brax) or ``data`` (MuJoCo Playground)."""
+    return "pipeline_state" if hasattr(state, "pipeline_state") else "data"
+
+
+def physics_of(state: Any) -> Any:
+    """The physics of an env state (unbatched or batched): brax's ``pipeline_state`` or Playground's ``data``."""
+    return getattr(state, _physics_field(state))
+
+
+def with_physics(state: Any, physics: Any) -> Any:
+    """``state`` with its physics (:func:`physics_of`) replaced by ``physics``."""
+    return state.replace(**{_physics_field(state): physics})
 
 
 def _reset(env: Env, key: jax.Array, params: Any) -> State:
@@ -327,11 +347,8 @@ class AutoResetWrapper(_ParamWrapper):
                 info[k] = nstate.info[k]
         info["final_obs"] = nstate.obs
         info["reset_key"] = key
-        return nstate.replace(
-            pipeline_state=jax.tree.map(pick, fresh.pipeline_state, nstate.pipeline_state),
-            obs=pick(fresh.obs, nstate.obs),
-            info=info,
-        )
+        physics = jax.tree.map(pick, physics_of(fresh), physics_of(nstate))
+        return with_physics(nstate, physics).replace(obs=pick(fresh.obs, nstate.obs), info=info)
 
 
 def map_lanes(fn: Callable[..., Any], lane_group: int, *args: Any) -> Any:
@@ -434,7 +451,7 @@ class PoolResetWrapper(_ParamWrapper):
 
     def _entry(self, state: State) -> dict[str, Any]:
         info = {k: v for k, v in state.info.items() if k not in self.keep_keys}
-        return {"pipeline_state": state.pipeline_state, "obs": state.obs, "info": info}
+        return {"pipeline_state": physics_of(state), "obs": state.obs, "info": info}
 
     def reset(self, rng: jax.Array, params: Any = None) -> State:
         keys = jax.random.split(rng, self.batch_size) if self.batch_size is not None else rng
@@ -492,11 +509,8 @@ class PoolResetWrapper(_ParamWrapper):
             pool_age=age,
             pool_reused=(done & stale).astype(jnp.float32),
         )
-        return nstate.replace(
-            pipeline_state=jax.tree.map(pick, pool["pipeline_state"], nstate.pipeline_state),
-            obs=pick(pool["obs"], nstate.obs),
-            info=new_info,
-        )
+        physics = jax.tree.map(pick, pool["pipeline_state"], physics_of(nstate))
+        return with_physics(nstate, physics).replace(obs=pick(pool["obs"], nstate.obs), info=new_info)
 
 
 def wrap_for_training(

@@ -875,15 +875,18 @@ class RunOptions(RunSettings):
     the :class:`RunSettings` and the ones below."""
 
     env: str = "arm7"
-    """Environment: a registered name (envs_mjx.names()) or brax:<name> for brax's own envs."""
+    """Environment: a registered name (envs_mjx.names()), brax:<name> for brax's own envs or playground:<Name> for
+    MuJoCo Playground's (pip install -e ".[playground]"; --env-config KEY=VALUE are its config_overrides, impl
+    jax unless impl=warp)."""
     preset: str = "auto"
-    """Hyper-parameter preset: auto (fast on a GPU, else cpu; brax on brax's tasks of PPO, DDPG and TD3),
-    thesis, cpu, fast or brax (PPO, DDPG, TD3). PPO, A2C and A3C presets run arm7 in kinematic mode under
-    thesis and cpu (--env-config overrides)."""
+    """Hyper-parameter preset: auto (fast on a GPU, else cpu; brax on brax's tasks of PPO, DDPG and TD3, playground
+    on MuJoCo Playground's dm_control_suite), thesis, cpu, fast, brax or playground (PPO, DDPG, TD3). PPO, A2C and
+    A3C presets run arm7 in kinematic mode under thesis and cpu (--env-config overrides)."""
     reward: str | None = None
     """Reward function of the env (arm7: sparse, shaped, ordinary, path); None keeps the env's default."""
     env_config: tuple[str, ...] = ()
-    """Further env settings as KEY=VALUE (e.g. mode=kinematic, trajectory=ellipse, obs=no_goal)."""
+    """Further env settings as KEY=VALUE (e.g. mode=kinematic, trajectory=ellipse, obs=no_goal; playground:<Name>:
+    Playground's config_overrides, e.g. impl=warp, episode_length=500)."""
     resume: str | None = None
     """Continue the run in this directory (its config.json is used; other flags are ignored).
     --stop-after-steps, --progress and the process options apply as given."""
@@ -920,6 +923,7 @@ COMMAND_LINE_FIELDS = ("stop_after_steps", "progress", *PROCESS_FIELDS, *MACHINE
 """Options a resumed run takes from its command line instead of its ``config.json``."""
 
 BRAX_PREFIX = "brax:"
+PLAYGROUND_PREFIX = "playground:"
 
 
 def parse_value(text: str) -> Any:
@@ -953,9 +957,21 @@ def env_record(name: str, env: Any) -> dict[str, Any]:
 
 
 def make_env(name: str, overrides: dict[str, Any]) -> Env:
-    """An unbatched env: ``envs_mjx.make(name, **overrides)`` or ``brax.envs.get_environment``."""
+    """An unbatched env: ``envs_mjx.make(name, **overrides)``, ``brax.envs.get_environment`` (``brax:<name>``)
+    or MuJoCo Playground's (``playground:<Name>``: ``envs_mjx.playground.load``, the overrides its
+    ``config_overrides``, ``impl`` defaulting to ``jax``).
+
+    Raises:
+      ValueError: an unknown name (the message lists the valid ones), bad overrides, or ``playground:``
+        without MuJoCo Playground installed (``PlaygroundMissingError``, naming the extra).
+    """
     import envs_mjx
 
+    if name.startswith(PLAYGROUND_PREFIX):
+        from envs_mjx import playground
+
+        playground.require(f"--env {name}")
+        return playground.load(name, **overrides)
     if name.startswith(BRAX_PREFIX):
         from brax import envs as brax_envs
 
@@ -964,7 +980,8 @@ def make_env(name: str, overrides: dict[str, Any]) -> Env:
             raise ValueError(f"unknown brax environment {bname!r}; valid: {', '.join(sorted(brax_envs._envs))}")
         return brax_envs.get_environment(bname, **overrides)
     if name not in envs_mjx.names():
-        raise ValueError(f"unknown environment {name!r}; valid names: {', '.join(envs_mjx.names())} (or brax:<name>)")
+        raise ValueError(f"unknown environment {name!r}; valid names: {', '.join(envs_mjx.names())} "
+                         f"(or {BRAX_PREFIX}<name>, {PLAYGROUND_PREFIX}<Name>)")
     return envs_mjx.make(name, **overrides)
 
 
@@ -1129,6 +1146,10 @@ class AlgorithmCLI:
             preset, config = known.preset, self.config_type()
         else:
             preset = resolve_preset(known.preset, known.env, self.name)
+            if known.preset == "auto" and preset == "playground" and not _asks_for_help(argv):
+                fn = "brax_ppo_config" if self.name == "ppo" else "brax_sac_config"
+                print(f"preset: playground (MuJoCo Playground's {fn} for {known.env}; train/presets.py "
+                      f"playground_{'ppo' if self.name == 'ppo' else 'sac_ddpg'}_config)", file=sys.stderr)
             if known.preset == "auto" and preset == "brax" and not any(a in ("-h", "--help") for a in argv):
                 if self.name == "ppo":
                     source = ("brax's published PPO settings", "BRAX_PPO")

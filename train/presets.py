@@ -16,14 +16,20 @@ PPO presets:
   over the tasks it names); DDPG and TD3: brax's SAC lanes and memory with TD3's own update settings and
   our tuned entries over them (:data:`BRAX_SAC`, :data:`TD3_OWN`, :data:`BRAX_SAC_TUNED`,
   :func:`brax_sac_ddpg_config`).
-* ``auto`` — ``brax`` for the tasks of :data:`BRAX_PPO` (PPO) or :data:`BRAX_SAC` (DDPG, TD3), else
-  ``fast`` on a GPU/TPU backend, else ``cpu``.
+* ``playground`` (PPO, DDPG and TD3) — MuJoCo Playground's own brax settings for ``--env playground:<Name>``
+  of its ``dm_control_suite`` (``brax_ppo_config`` / ``brax_sac_config``), converted as brax's rows are
+  (:func:`playground_ppo_config`, :func:`playground_sac_ddpg_config`).
+* ``auto`` — ``brax`` for the tasks of :data:`BRAX_PPO` (PPO) or :data:`BRAX_SAC` (DDPG, TD3), ``playground``
+  where Playground has settings for the env, else ``fast`` on a GPU/TPU backend, else ``cpu``.
 
 Environment settings (reward, physics mode, …) stay apart from algorithm settings: a preset
 returns a :class:`PPOConfig` and env overrides separately.
 """
 
 from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
 
 import jax
 
@@ -45,6 +51,12 @@ __all__ = [
     "brax_ppo_config",
     "brax_sac_ddpg_config",
     "brax_sac_task",
+    "ddpg_config_of_sac_row",
+    "playground_ppo_config",
+    "playground_row",
+    "playground_sac_ddpg_config",
+    "playground_task",
+    "ppo_config_of_row",
     "distribute",
     "DDPG_PRESETS",
     "PPO_PRESETS",
@@ -61,9 +73,9 @@ __all__ = [
     "unicycle_a_p",
 ]
 
-PPO_PRESETS = ("auto", "thesis", "cpu", "fast", "brax")
+PPO_PRESETS = ("auto", "thesis", "cpu", "fast", "brax", "playground")
 PRESETS = ("auto", "thesis", "cpu", "fast")
-"""The presets of every algorithm; ``brax`` is PPO's, DDPG's and TD3's (:data:`DDPG_PRESETS`)."""
+"""The presets of every algorithm; ``brax`` and ``playground`` are PPO's, DDPG's and TD3's (:data:`DDPG_PRESETS`)."""
 
 BRAX_COLUMNS = ("num_timesteps", "num_envs", "batch_size", "num_minibatches", "unroll_length",
                 "num_updates_per_batch", "discounting", "entropy_cost", "reward_scaling", "learning_rate",
@@ -124,8 +136,15 @@ def brax_ppo_config(task: str, action_size: int, segments: bool | None = None, t
     """
     if task not in BRAX_PPO:
         raise KeyError(f"no brax PPO settings for {task!r}; known: {', '.join(BRAX_PPO)}")
-    b = {**BRAX_PPO[task], **row}
     segments = task in BRAX_PPO_SEGMENTS if segments is None else segments
+    config = ppo_config_of_row({**BRAX_PPO[task], **row}, action_size, segments)
+    return config.replace(**(BRAX_PPO_TUNED.get(task, {}) if tuned else {}))
+
+
+def ppo_config_of_row(b: Mapping[str, Any], action_size: int, segments: bool) -> PPOConfig:
+    """The :class:`PPOConfig` of a row of brax's ``ppo.train`` settings ``b`` (the :data:`BRAX_COLUMNS`;
+    ``normalize_observations``, default True, where the row has it; other entries are not ours to
+    convert): the conversion :func:`brax_ppo_config` describes, brax's own update with ``segments``."""
     lanes = int(b["num_envs"])
     unrolls = max(1, int(b["batch_size"] * b["num_minibatches"]) // lanes)
     n = unrolls * int(b["unroll_length"])
@@ -143,11 +162,11 @@ def brax_ppo_config(task: str, action_size: int, segments: bool | None = None, t
         entropy_coef=float(b["entropy_cost"]), reward_scale=float(b["reward_scaling"]),
         actor_lr=float(b["learning_rate"]), critic_lr=float(b["learning_rate"]), sigma=(0.7,) * action_size,
         learn_std=True, state_std=True, tanh_actions=True, activation="swish", critic_first=True,
-        normalize_obs=True, normalize_advantages=True, batch_norm=False,
+        normalize_obs=bool(b.get("normalize_observations", True)), normalize_advantages=True, batch_norm=False,
         actor_hidden=(32, 32, 32, 32), critic_hidden=(256,) * 5, episode_length=int(b["episode_length"]),
         reset_refresh=1.0,
     )  # fmt: skip
-    return config.replace(**brax_update, **(BRAX_PPO_TUNED.get(task, {}) if tuned else {}))
+    return config.replace(**brax_update)
 
 
 BRAX_PPO_SEGMENTS = ("halfcheetah", "reacher")
@@ -235,9 +254,17 @@ def brax_sac_ddpg_config(task: str, own_settings: bool = True, tuned: bool = Tru
       with σ 0.1 (TD3's)."""
     if task not in BRAX_SAC:
         raise KeyError(f"no brax SAC settings for {task!r}; known: {', '.join(BRAX_SAC)}")
-    b = {**BRAX_SAC[task], **row}
+    own = {**TD3_OWN, **(BRAX_SAC_TUNED.get(task, {}) if tuned else {})} if own_settings else None
+    return ddpg_config_of_sac_row({**BRAX_SAC[task], **row}, own)
+
+
+def ddpg_config_of_sac_row(b: Mapping[str, Any], own: Mapping[str, Any] | None) -> DDPGConfig:
+    """The :class:`DDPGConfig` of a row of brax's ``sac.train`` settings ``b`` (the :data:`BRAX_SAC_COLUMNS`;
+    ``normalize_observations``, default True, where the row has it): the conversion
+    :func:`brax_sac_ddpg_config` describes, with ``own`` (:data:`TD3_OWN`'s keys) in place of the row's
+    update settings, or the row's where ``own`` is None."""
     lanes = int(b["num_envs"])
-    o = {**TD3_OWN, **(BRAX_SAC_TUNED.get(task, {}) if tuned else {})}
+    own_settings, o = own is not None, own or {}
     if own_settings:
         updates, batch, lr = lanes * int(o["updates_per_env_step"]), int(o["batch_size"]), float(o["learning_rate"])
         gamma, scale, sigma = float(o["gamma"]), float(o["reward_scale"]), float(o["noise_scale"])
@@ -249,8 +276,8 @@ def brax_sac_ddpg_config(task: str, own_settings: bool = True, tuned: bool = Tru
         updates_per_iteration=updates, batch_size=batch, buffer_size=int(b["max_replay_size"]),
         learning_starts=int(b["min_replay_size"]), random_start=own_settings and bool(o["random_start"]),
         gamma=gamma, reward_scale=scale, actor_lr=lr, critic_lr=lr, tau=0.005,
-        normalize_obs=True, actor_hidden=(256, 256), critic_hidden=(256, 256), noise="gaussian", noise_scale=(sigma,),
-        episode_length=int(b["episode_length"]),
+        normalize_obs=bool(b.get("normalize_observations", True)), actor_hidden=(256, 256),
+        critic_hidden=(256, 256), noise="gaussian", noise_scale=(sigma,), episode_length=int(b["episode_length"]),
     )  # fmt: skip
 
 
@@ -270,10 +297,94 @@ def brax_sac_task(env_name: str) -> str | None:
     return _brax_task_of(env_name, BRAX_SAC)
 
 
+PLAYGROUND_PEERS = {"ppo": "ppo", "ddpg": "sac", "td3": "sac"}
+"""Our algorithm -> the brax trainer whose MuJoCo Playground settings its ``playground`` preset converts."""
+
+
+def playground_row(env_name: str, peer: str = "ppo") -> dict[str, Any] | None:
+    """MuJoCo Playground's own settings of brax's ``ppo.train`` (``peer='ppo'``: its ``brax_ppo_config``) or
+    ``sac.train`` (``'sac'``: ``brax_sac_config``) for ``env_name`` (``playground:<Name>`` or ``<Name>``) of
+    its ``dm_control_suite`` (``mujoco_playground.config.dm_control_suite_params``), as a dict in brax's
+    argument names (``network_factory`` a dict of its keywords); None for an env of another suite.
+
+    Raises:
+      PlaygroundMissingError: MuJoCo Playground is not installed (a ``ValueError`` naming the extra).
+    """
+    from envs_mjx import playground
+
+    name = env_name.removeprefix(playground.PREFIX)
+    playground.require(f"--env {playground.PREFIX}{name}")
+    if playground.suite_of(name) != "dm_control_suite":
+        return None
+    from mujoco_playground.config import dm_control_suite_params as params
+
+    config = (params.brax_ppo_config if peer == "ppo" else params.brax_sac_config)(name)
+    return config.to_dict()
+
+
+def playground_task(env_name: str | None, algo: str = "ppo") -> str | None:
+    """The Playground name of ``env_name`` (``playground:<Name>``) if Playground has settings for ``algo``'s
+    peer there (:func:`playground_row`; ``algo`` one of :data:`PLAYGROUND_PEERS`), else None."""
+    from envs_mjx import playground
+
+    if not env_name or not env_name.startswith(playground.PREFIX) or algo not in PLAYGROUND_PEERS:
+        return None
+    playground.require(f"--env {env_name}")
+    name = env_name.removeprefix(playground.PREFIX)
+    if playground.suite_of(name) is None:
+        return None
+    return name if playground_row(name, PLAYGROUND_PEERS[algo]) is not None else None
+
+
+def _playground_row_for(env_name: str, peer: str, row: Mapping[str, Any]) -> dict[str, Any]:
+    """:func:`playground_row` with ``row`` over it; ``ValueError`` for an env without one."""
+    base = playground_row(env_name, peer) if env_name.startswith("playground:") else None
+    if base is None:
+        raise ValueError(f"--preset playground: {env_name!r} has no MuJoCo Playground {peer.upper()} settings; it "
+                         "needs --env playground:<Name> of Playground's dm_control_suite")  # fmt: skip
+    b = {**base, **row}
+    if int(b.get("action_repeat", 1)) != 1:
+        raise ValueError(f"--preset playground: Playground's settings for {env_name} repeat each action "
+                         f"{b['action_repeat']} times (action_repeat), which train.* do not; use --preset cpu")
+    return b
+
+
+def playground_ppo_config(env_name: str, action_size: int, segments: bool = True, **row: Any) -> PPOConfig:
+    """The :class:`PPOConfig` of MuJoCo Playground's ``brax_ppo_config`` for ``env_name``
+    (``playground:<Name>`` of its ``dm_control_suite``), entries updated by ``row``: converted as
+    :func:`brax_ppo_config` converts brax's rows (:func:`ppo_config_of_row`; brax's networks, tanh-squashed
+    actions, normalised observations), brax's own update by default (``segments``), as Playground trains
+    with brax's PPO. Playground's dm_control rows: 60 M env steps (100 M on AcrobotSwingup*, SwimmerSwimmer6,
+    WalkerRun), 2048 envs, batch 1024, 32 mini-batches, unrolls of 30, 16 passes, γ 0.995 (0.95 on
+    BallInCup and FingerSpin), rewards × 10, Adam 1e-3, entropy 1e-2, episodes of the env's 1000 steps.
+
+    Raises:
+      ValueError: ``env_name`` has no such settings, or they repeat actions (``action_repeat`` > 1).
+      PlaygroundMissingError: MuJoCo Playground is not installed.
+    """
+    return ppo_config_of_row(_playground_row_for(env_name, "ppo", row), action_size, segments)
+
+
+def playground_sac_ddpg_config(env_name: str, own_settings: bool = True, **row: Any) -> DDPGConfig:
+    """The DDPG :class:`DDPGConfig` of MuJoCo Playground's ``brax_sac_config`` for ``env_name``
+    (``playground:<Name>`` of its ``dm_control_suite``), entries updated by ``row``: converted as
+    :func:`brax_sac_ddpg_config` converts brax's SAC rows (:func:`ddpg_config_of_sac_row`), with
+    :data:`TD3_OWN` unless ``own_settings=False``; TD3 adds ``train.td3.TD3_SETTINGS``. Playground's rows:
+    5 M env steps (10 M on some tasks), 128 envs, memory 4 194 304 filled to 8192 first, 8 updates of 512
+    per step at 1e-3, γ 0.99; its SAC critic's layer norm has no counterpart here.
+
+    Raises:
+      ValueError: ``env_name`` has no such settings, or they repeat actions (``action_repeat`` > 1).
+      PlaygroundMissingError: MuJoCo Playground is not installed.
+    """
+    return ddpg_config_of_sac_row(_playground_row_for(env_name, "sac", row), TD3_OWN if own_settings else None)
+
+
 def resolve_preset(name: str, env_name: str | None = None, algo: str = "ppo") -> str:
     """``auto`` → ``brax`` for a PPO run on a task of :data:`BRAX_PPO` or a DDPG / TD3 run on one of
-    :data:`BRAX_SAC`, else ``fast`` on an accelerator backend, else ``cpu``; other names unchanged
-    (validated: ``brax`` is PPO's, DDPG's and TD3's)."""
+    :data:`BRAX_SAC`, ``playground`` for such a run on a ``playground:<Name>`` env with MuJoCo Playground's
+    settings (:func:`playground_task`), else ``fast`` on an accelerator backend, else ``cpu``; other names
+    unchanged (validated: ``brax`` and ``playground`` are PPO's, DDPG's and TD3's)."""
     valid, table = {"ppo": (PPO_PRESETS, BRAX_PPO), "ddpg": (DDPG_PRESETS, BRAX_SAC),
                     "td3": (DDPG_PRESETS, BRAX_SAC)}.get(algo, (PRESETS, {}))  # fmt: skip
     if name not in valid:
@@ -281,6 +392,8 @@ def resolve_preset(name: str, env_name: str | None = None, algo: str = "ppo") ->
     if name == "auto":
         if env_name is not None and _brax_task_of(env_name, table):
             return "brax"
+        if playground_task(env_name, algo):
+            return "playground"
         return "fast" if jax.default_backend() in ("gpu", "cuda", "rocm", "tpu") else "cpu"
     return name
 
@@ -406,7 +519,7 @@ def lstm_variant(config: PPOConfig, name: str, family: str) -> PPOConfig:
     the ellipse (``benchmarks/results/gpu-nvidia_h100_80gb_hbm3-tracking_sharper_rewards.md``).
     ``brax``: the task's lanes and unrolls (whole sequences), the recurrent policy's clipped actions
     and relu (it has neither the squashed action nor a σ from the state)."""
-    if name == "brax":  # each sequence in two of the 8 updates
+    if name in ("brax", "playground"):  # each sequence in two of the 8 updates
         lanes, unroll = config.num_envs, max(10, config.unroll_length // 10 * 10)
         minibatch = lanes * 10 * max(1, unroll // 40)
         config = config.replace(tanh_actions=False, clip_actions=True, state_std=False, activation="relu")
@@ -438,6 +551,8 @@ def _ppo_base_preset(name: str, env_name: str, episode_length: int, action_size:
     if name == "brax":
         task = brax_task(env_name) or "inverted_pendulum"
         return brax_ppo_config(task, action_size, None if segments else False)
+    if name == "playground":  # the env's own time limit (Playground's row: its default config's)
+        return playground_ppo_config(env_name, action_size, segments, episode_length=episode_length)
     if family == "arm":
         # Table 5.2 and §5.4: 2 x 200 nets, batch-norm actor, σ = [0.8, 0.8, 0.1].
         base = PPOConfig(
@@ -575,9 +690,10 @@ def a2c_preset(
 
 # ---- DDPG ---------------------------------------------------------------------------------
 
-DDPG_PRESETS = ("auto", "thesis", "cpu", "fast", "brax")
+DDPG_PRESETS = ("auto", "thesis", "cpu", "fast", "brax", "playground")
 """DDPG's and TD3's presets: ``brax`` is :func:`brax_sac_ddpg_config` of the env's :data:`BRAX_SAC` task
-(hopper's row for other envs, with the env's own episode length)."""
+(hopper's row for other envs, with the env's own episode length); ``playground`` is
+:func:`playground_sac_ddpg_config` of a ``playground:<Name>`` env."""
 
 
 RACING_ENV = {"road": "random", "opponent_speeds": True, "opponent_offsets": True, "distance_scale": "log",
@@ -664,6 +780,8 @@ def ddpg_preset(
         task = brax_sac_task(env_name)
         base = brax_sac_ddpg_config(task or "hopper").replace(**({} if task else {"episode_length": 0}))
         presets = {"brax": {}}
+    elif name == "playground":  # the env's own time limit (Playground's row: its default config's)
+        base, presets = playground_sac_ddpg_config(env_name, episode_length=episode_length), {"playground": {}}
     elif family == "arm":
         sparse = reward == "sparse"
         long = sparse or _precise_arm(env_name)
@@ -767,13 +885,13 @@ def distribute(config: DDPGConfig, name: str) -> DDPGConfig:
     ``thesis`` and ``cpu``: 4 synchronous workers sharing the ``num_envs`` lanes and 4 collecting
     workers of ``num_envs / 4`` lanes each, mini-batches of 32 per synchronous worker (128
     transitions per update), a shared memory of 200 000 and a fetch every 5 iterations (§4.2.2;
-    the tracking rows step one lane per worker, as the thesis's processes did).  ``fast`` and ``brax``: 8 + 8
-    workers (a multiple of 1, 2, 4 or 8 GPUs), the single learner's batch split over the 8
+    the tracking rows step one lane per worker, as the thesis's processes did).  ``fast``, ``brax`` and
+    ``playground``: 8 + 8 workers (a multiple of 1, 2, 4 or 8 GPUs), the single learner's batch split over the 8
     synchronous workers, memory at least 10^6.  The 'steps' budget counts every lane's steps; it
     grows with the lanes so that the number of iterations and updates stays the preset's (the
     thesis's tracking row: each of the 8 workers runs the 1000 episodes).
     """
-    wide = name in ("fast", "brax")
+    wide = name in ("fast", "brax", "playground")
     workers = 8 if wide else 4
     changes: dict = dict(distributed=True, sync_workers=workers, collect_workers=workers, fetch_every=5,
                          collect_lanes=max(1, config.num_envs // workers))

@@ -176,7 +176,7 @@ def test_bad_input_names_the_valid_choices(capsys):
     assert ppo_cli.main(["--env", "nope"]) == 2
     assert "unknown environment 'nope'; valid names: arm7" in capsys.readouterr().err
     assert ppo_cli.main(["--env", "arm7", "--preset", "huge"]) == 2
-    assert "unknown preset 'huge'; valid presets: auto, thesis, cpu, fast, brax" in capsys.readouterr().err
+    assert "unknown preset 'huge'; valid presets: auto, thesis, cpu, fast, brax, playground" in capsys.readouterr().err
     assert ppo_cli.main(["--env", "arm7", "--clip-eps", "2"]) == 2
     assert "clip_eps=2.0 is out of range; allowed (0, 1)" in capsys.readouterr().err
     assert ppo_cli.main(["--env", "arm7", "--reward", "fast"]) == 2

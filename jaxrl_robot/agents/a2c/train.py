@@ -35,6 +35,7 @@ from flax import struct
 from jax.sharding import Mesh
 
 from envs_mjx.config import ConfigError
+from envs_mjx.playground import adapt
 from jaxrl_robot import parallel
 from jaxrl_robot.acting import rollout_until_done
 from jaxrl_robot.agents import common
@@ -117,10 +118,10 @@ def make_networks(config: A2CConfig, action_size: int) -> tuple[GaussianActor, C
 def make_trainer(config: A2CConfig, env: Env, *, mesh: Mesh | None = None, iterations_per_update: int = 1) -> Trainer:
     """Build the A2C (``A2CConfig``) or A3C (``A3CConfig``) :class:`~jaxrl_robot.types.Trainer`.
 
-    ``config`` is validated (an :class:`A3CConfig` selects A3C); the *unbatched* ``env`` is
-    wrapped for training; the lanes are split over ``mesh`` (default: all devices); one
-    ``update`` call runs ``iterations_per_update`` rounds (see
-    :func:`~jaxrl_robot.agents.common.setup`).
+    ``config`` is validated (an :class:`A3CConfig` selects A3C); the *unbatched* ``env`` (a brax
+    ``Env`` or a MuJoCo Playground env, ``envs_mjx.playground.adapt``) is wrapped for training; the lanes
+    are split over ``mesh`` (default: all devices); one ``update`` call runs ``iterations_per_update``
+    rounds (see :func:`~jaxrl_robot.agents.common.setup`).
 
     Metrics of a chunk (scalars): ``actor_loss``, ``critic_loss``, ``entropy``, ``value``,
     ``advantage`` (means over rounds), ``reward`` (per step taken), ``steps_taken`` (env steps
@@ -130,6 +131,7 @@ def make_trainer(config: A2CConfig, env: Env, *, mesh: Mesh | None = None, itera
     ``staleness_max`` and for A3C ``staleness_hist_<lower edge>`` (share of the chunk's pushes).
     """
     asynchronous = isinstance(config, A3CConfig)
+    env = adapt(env)
     run = common.setup(config, env, mesh, iterations_per_update)
     K, N, k_local = config.num_envs, config.unroll_length, run.local_lanes
     L = config.lanes_per_worker if asynchronous else k_local

@@ -22,6 +22,7 @@ from brax.envs.base import Env, State
 from flax import struct
 
 from envs_mjx.config import ConfigError
+from envs_mjx.playground import adapt
 from jaxrl_robot import parallel
 from jaxrl_robot.agents.common import cast_like
 from jaxrl_robot.agents.ddpg.acting import Acting, make_acting, make_noise_for
@@ -163,6 +164,7 @@ def setup(
       ValueError: ``num_envs`` does not divide over the mesh's devices.
     """
     config.validate()
+    env = adapt(env)
     config = with_env_target_clip(config, env)
     chunk = iterations_per_update or (config.cycles_per_epoch if config.schedule == "episodes" else 1)
     if chunk < 1:

@@ -59,7 +59,8 @@ def make_trainer(
 
     Args:
       config: hyper-parameters (validated here); ``config.distributed`` selects distributed DDPG.
-      env: an *unbatched* env; with HER it must provide the goal-conditioned API
+      env: an *unbatched* env: a brax ``Env`` (brax's or ours) or a MuJoCo Playground env
+        (``envs_mjx.playground.adapt``); with HER it must provide the goal-conditioned API
         (``core.GOAL_API``) and ``state.info["ee_pos"]``.
       mesh: device mesh from ``parallel.lane_mesh`` (default: all devices); the ``num_envs``
         lanes are split over it, the replay memory and the learner are replicated.

@@ -37,6 +37,7 @@ from jax.sharding import Mesh
 
 from envs_mjx.base import ClipActionWrapper, TanhActionWrapper
 from envs_mjx.config import ConfigError
+from envs_mjx.playground import adapt
 from jaxrl_robot import parallel
 from jaxrl_robot.acting import per_lane_keys, rollout_with_memory
 from jaxrl_robot.agents import common
@@ -130,13 +131,16 @@ def optimizer_steps(config: PPOConfig, iterations: int, pretrain_iters: int = 0)
 
 
 def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, iterations_per_update: int = 1) -> Trainer:
-    """Build the PPO :class:`~jaxrl_robot.types.Trainer` for the *unbatched* ``env``.
+    """Build the PPO :class:`~jaxrl_robot.types.Trainer` for the *unbatched* ``env``: a brax ``Env``
+    (brax's or ours) or a MuJoCo Playground env (any env ``envs_mjx.playground.adapt`` takes; the
+    policy sees the ``"state"`` entry of a dict observation).
 
     ``config`` is validated; ``env`` is wrapped for training (lanes, time limit, true auto-reset,
     the reset pool and lane groups of ``config``); the lanes are split over ``mesh`` (default: all
     devices); one ``update`` call runs ``iterations_per_update`` iterations (see
     :func:`~jaxrl_robot.agents.common.setup`).
     """
+    env = adapt(env)
     acting_env = ClipActionWrapper(env) if config.clip_actions else env
     acting_env = TanhActionWrapper(acting_env) if config.tanh_actions else acting_env
     run = common.setup(
