@@ -139,7 +139,7 @@ def _tiny(**kw):
 def _trained(trainer, chunks, seed=0):
     """The state after ``chunks`` jitted update chunks from ``init(PRNGKey(seed))``."""
     update = jax.jit(trainer.update)
-    state = trainer.init(jax.random.PRNGKey(seed))
+    state = jax.jit(trainer.init)(jax.random.PRNGKey(seed))
     for _ in range(chunks):
         state, _ = update(state)
     return state
@@ -151,7 +151,7 @@ def test_replay_marks_termination_only(step_size, noise, expected):
     # saturated actions of size 2 leave the region [-1, 1]^3 at the first step (failure, d = 1)
     env = ToyGoalEnv(max_steps=3, step_size=step_size, threshold=1e-6)
     trainer = make_trainer(_tiny(episode_length=3, noise_scale=(noise,), failure_value=-10.0), env)
-    state = trainer.init(jax.random.PRNGKey(0))
+    state = jax.jit(trainer.init)(jax.random.PRNGKey(0))
     update = jax.jit(trainer.update)
     start = state
     state, metrics = update(state)
@@ -174,7 +174,7 @@ def test_termination_metric_bootstraps_the_other_endings():
     env = ToyGoalEnv(max_steps=3, step_size=2.0, threshold=1e-6)
     trainer = make_trainer(_tiny(episode_length=3, noise_scale=(10.0,), failure_value=-10.0,
                                  termination_metric="success"), env)
-    state, _ = jax.jit(trainer.update)(trainer.init(jax.random.PRNGKey(0)))
+    state, _ = jax.jit(trainer.update)(jax.jit(trainer.init)(jax.random.PRNGKey(0)))
     size = int(state.replay.size)
     assert size == 2
     np.testing.assert_array_equal(state.replay.data.terminated[:size], 0.0)
@@ -189,7 +189,7 @@ def test_reward_shift_enters_the_critic_target():
     env = ToyGoalEnv(max_steps=10, step_size=1e-4, threshold=1e-6)
     trainer = make_trainer(_tiny(episode_length=10, updates_per_cycle=1, reward_shift=-5.0, actor_hidden=(),
                                  critic_hidden=()), env)
-    _, metrics = jax.jit(trainer.update)(trainer.init(jax.random.PRNGKey(0)))
+    _, metrics = jax.jit(trainer.update)(jax.jit(trainer.init)(jax.random.PRNGKey(0)))
     np.testing.assert_allclose(float(metrics["critic_loss"]), 36.0, rtol=0.02)
 
 
@@ -208,7 +208,7 @@ def test_targets_are_clipped_to_the_env_return_bounds():
     for scale, expected in ((1.0, 0.25), (2.0, 1.0)):
         trainer = make_trainer(_tiny(episode_length=10, updates_per_cycle=1, clip_targets_to_env=True,
                                      reward_scale=scale, actor_hidden=(), critic_hidden=()), env)
-        _, metrics = jax.jit(trainer.update)(trainer.init(jax.random.PRNGKey(0)))
+        _, metrics = jax.jit(trainer.update)(jax.jit(trainer.init)(jax.random.PRNGKey(0)))
         np.testing.assert_allclose(float(metrics["critic_loss"]), expected, rtol=0.02)
     assert with_env_target_clip(_tiny(clip_targets_to_env=True, reward_shift=-1.0, gamma=0.9), env).target_clip \
         == pytest.approx((-0.5 - 10.0, 0.0))  # a negative shift widens the lower bound by shift / (1 − γ)
@@ -247,7 +247,7 @@ def test_sparse_her_learns_to_reach_goals():
                         critic_hidden=(64, 64))
     trainer = make_trainer(config, env)
     update = jax.jit(trainer.update)
-    state = trainer.init(jax.random.PRNGKey(0))
+    state = jax.jit(trainer.init)(jax.random.PRNGKey(0))
     for _ in range(trainer.num_updates):
         state, metrics = update(state)
     assert float(metrics["updates"]) == 3 * 10 * 20
@@ -281,12 +281,12 @@ def test_observation_normaliser_tracks_stored_observations(schedule, tmp_path):
     ckpt = Checkpointer(str(tmp_path / "ckpt"))
     ckpt.save(1, state, {"chunk": 1})
     ckpt.close()
-    restored, _ = Checkpointer(str(tmp_path / "ckpt")).restore(1, trainer.init(jax.random.PRNGKey(1)))
+    restored, _ = Checkpointer(str(tmp_path / "ckpt")).restore(1, jax.jit(trainer.init)(jax.random.PRNGKey(1)))
     for name in ("count", "mean", "var"):
         np.testing.assert_array_equal(getattr(restored.obs_stats, name), getattr(stats, name))
 
     plain = make_trainer(_tiny(**kw), env)
-    pstate, _ = jax.jit(plain.update)(plain.init(jax.random.PRNGKey(0)))
+    pstate, _ = jax.jit(plain.update)(jax.jit(plain.init)(jax.random.PRNGKey(0)))
     np.testing.assert_array_equal(pstate.obs_stats.mean, 0.0)
     np.testing.assert_allclose(plain.policy(pstate)(obs), actor.apply(pstate.actor_params, obs), rtol=1e-6)
 
@@ -318,7 +318,7 @@ def test_twin_critics_with_policy_delay_count_actor_and_target_updates():
     env = ToyGoalEnv(max_steps=5, step_size=0.05)
     trainer = make_trainer(_tiny(twin_critics=True, policy_delay=3, per=True, episode_length=5), env)
     update = jax.jit(trainer.update)
-    start = trainer.init(jax.random.PRNGKey(0))
+    start = jax.jit(trainer.init)(jax.random.PRNGKey(0))
     kernels = jax.tree.leaves(start.critic_params)
     assert all(k.shape[0] == 2 for k in kernels)
     assert not np.allclose(kernels[-1][0], kernels[-1][1])
