@@ -16,7 +16,7 @@ import pytest
 from benchmarks import brax_tasks
 from jaxrl_robot.checkpoint import Checkpointer
 from jaxrl_robot.types import Trainer
-from tests.subproc import ROOT, cpu_env
+from tests.subproc import ROOT, cache_every_program, cpu_env
 from train import a2c as a2c_cli
 from train import common, presets
 from train import ddpg as ddpg_cli
@@ -58,20 +58,8 @@ def test_cli_learns_arm7_on_a_small_budget_and_writes_the_run_directory(tmp_path
     assert result["success_rate"] >= 0.8, result
 
 
-RESUME_SCRIPT = """
-import json, sys
-from train import ppo
-out, tiny = sys.argv[1], json.loads(sys.argv[2])
-args = ["--env", "brax:fast", "--episode-length", "16", "--total-steps", "256", "--chunks", "4",
-        "--checkpoint-every", "1", "--eval-episodes", "2", "--seed", "7", *tiny]
-assert ppo.main([*args, "--out", out + "/a"]) == 0                              # uninterrupted
-assert ppo.main([*args, "--out", out + "/b", "--stop-after-steps", "128"]) == 0  # stopped half-way
-import glob, os
-run_b, = glob.glob(out + "/b/*")
-assert not os.path.exists(os.path.join(run_b, "eval.json"))
-assert ppo.main(["--resume", run_b]) == 0                                        # continued
-print("OK")
-"""
+RUN = ["--env", "brax:fast", "--episode-length", "16", "--total-steps", "256", "--chunks", "4",
+       "--checkpoint-every", "1", "--eval-episodes", "2", *TINY]  # fmt: skip
 
 
 def final_checkpoint(run_dir, target=None):
@@ -96,19 +84,17 @@ def assert_same_learnt_state(state, reference, atol=None):
             np.testing.assert_allclose(np.asarray(x), np.asarray(y), atol=atol)
 
 
-def test_resume_equals_uninterrupted(tmp_path):
-    # The three runs compile the same programs: a persistent compilation cache makes the 2nd and 3rd cheap.
-    env = cpu_env(
-        JAX_COMPILATION_CACHE_DIR=str(tmp_path / "jax_cache"),
-        JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0",
-        JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES="-1",
-    )
-    proc = subprocess.run([sys.executable, "-c", RESUME_SCRIPT, str(tmp_path), json.dumps(TINY)], cwd=ROOT, env=env,
-                          capture_output=True, text=True, timeout=600)  # fmt: skip
-    assert proc.returncode == 0 and "OK" in proc.stdout, proc.stdout[-3000:] + proc.stderr[-3000:]
-    assert "resumed at chunk 2 (128 env steps)" in proc.stdout
+def test_resume_equals_uninterrupted(tmp_path, capsys):
+    # The three runs compile the same programs: the 2nd and 3rd load them from the persistent compilation cache.
+    args = [*RUN, "--seed", "7"]
+    with cache_every_program():
+        assert ppo_cli.main([*args, "--out", str(tmp_path / "a")]) == 0  # uninterrupted
+        assert ppo_cli.main([*args, "--out", str(tmp_path / "b"), "--stop-after-steps", "128"]) == 0  # stopped half-way
+        (run_b,) = glob.glob(str(tmp_path / "b" / "*"))
+        assert not os.path.exists(os.path.join(run_b, "eval.json"))
+        assert ppo_cli.main(["--resume", run_b]) == 0  # continued
+    assert "resumed at chunk 2 (128 env steps)" in capsys.readouterr().out
     (run_a,) = glob.glob(str(tmp_path / "a" / "*"))
-    (run_b,) = glob.glob(str(tmp_path / "b" / "*"))
     sa, ra = final_checkpoint(run_a)
     sb, rb = final_checkpoint(run_b)
     assert ra["chunk"] == rb["chunk"] == 4
@@ -117,31 +103,19 @@ def test_resume_equals_uninterrupted(tmp_path):
     assert len(rows_b) == 5  # header + 4 chunks, none repeated after the resume
 
 
-SEEDS_SCRIPT = """
-import json, sys
-from train import ppo
-out, tiny = sys.argv[1], json.loads(sys.argv[2])
-args = ["--env", "brax:fast", "--episode-length", "16", "--total-steps", "256", "--chunks", "4",
-        "--checkpoint-every", "1", "--eval-episodes", "2", *tiny]
-assert ppo.main([*args, "--seed", "8", "--out", out + "/single"]) == 0
-assert ppo.main([*args, "--seed", "7", "--seeds", "2", "--seed-map", "loop", "--out", out + "/loop"]) == 0
-assert ppo.main([*args, "--seed", "7", "--seeds", "2", "--seed-map", "vmap", "--out", out + "/vmap",
-                 "--stop-after-steps", "128"]) == 0                             # vmapped, stopped half-way
-import glob
-run, = glob.glob(out + "/vmap/*")
-assert ppo.main(["--resume", run]) == 0                                          # and continued
-print("OK")
-"""
-
-
-def test_seeds_train_together_each_as_its_own_seed_would(tmp_path):
+def test_seeds_train_together_each_as_its_own_seed_would(tmp_path, capsys):
     """``--seeds 2 --seed 7``: seeds 7 and 8 in one run, each with its own ``seed<k>/`` (metrics, eval.json);
     seed 8 of the loop equals a ``--seed 8`` run to the bit, of the vmapped run (stopped half-way and
     resumed) to float rounding, and seeds 7 and 8 learn different states."""
-    proc = subprocess.run([sys.executable, "-c", SEEDS_SCRIPT, str(tmp_path), json.dumps(TINY)], cwd=ROOT,
-                          env=cpu_env(), capture_output=True, text=True, timeout=600)  # fmt: skip
-    assert proc.returncode == 0 and "OK" in proc.stdout, proc.stdout[-3000:] + proc.stderr[-3000:]
-    assert "resumed at chunk 2 (128 env steps)" in proc.stdout
+    with cache_every_program():
+        assert ppo_cli.main([*RUN, "--seed", "8", "--out", str(tmp_path / "single")]) == 0
+        loop = ["--seed", "7", "--seeds", "2", "--seed-map", "loop", "--out", str(tmp_path / "loop")]
+        assert ppo_cli.main([*RUN, *loop]) == 0
+        vmap = ["--seed", "7", "--seeds", "2", "--seed-map", "vmap", "--out", str(tmp_path / "vmap")]
+        assert ppo_cli.main([*RUN, *vmap, "--stop-after-steps", "128"]) == 0  # vmapped, stopped half-way
+        (run,) = glob.glob(str(tmp_path / "vmap" / "*"))
+        assert ppo_cli.main(["--resume", run]) == 0  # and continued
+    assert "resumed at chunk 2 (128 env steps)" in capsys.readouterr().out
     (single,) = glob.glob(str(tmp_path / "single" / "*"))
     ref, _ = final_checkpoint(single)
     for mode in ("loop", "vmap"):
