@@ -46,6 +46,19 @@ program), brax's one after another.
   off-policy budget the evaluations can take most of the wall: ``--evals 3`` evaluates before training,
   half-way and at the end.
 
+MuJoCo Playground's tasks (``--tasks playground:<Name>`` of its ``dm_control_suite``; the ``playground``
+extra): the row is Playground's own ``brax_ppo_config`` / ``brax_sac_config``
+(:func:`train.presets.playground_row`: its steps, envs, batch, unroll, epochs, mini-batches, discount, reward
+scaling, learning rate, entropy cost, normalisation, episode length, action repeat), brax's side trains the
+Playground env wrapped by Playground's ``wrapper.wrap_for_brax_training`` (as Playground's training scripts
+do), ours the same env object through :class:`envs_mjx.playground.PlaygroundEnv`, converted as brax's rows
+(:func:`train.presets.ppo_config_of_row`, brax's own update; :func:`train.presets.ddpg_config_of_sac_row`);
+``--env-config`` gives Playground's ``config_overrides`` (``impl=jax`` unless given)::
+
+    python -m benchmarks.brax_tasks --tasks playground:CartpoleBalance playground:CartpoleSwingup \
+        playground:PendulumSwingup playground:ReacherEasy playground:CheetahRun playground:WalkerWalk \
+        --seeds 3 --label playground                                # Playground's own step counts
+
 Each side's record is written as it grows (ours with ``--seed-map vmap``: after every evaluation; seeds
 one after another: after every evaluation of the first seed, then after every seed), so a run cut short
 (a time limit) leaves its evaluations so far, shown as ``cut at N steps`` and not compared with the other
@@ -79,17 +92,38 @@ from jaxrl_robot import parallel, plots
 from jaxrl_robot.agents import ddpg, ppo
 from jaxrl_robot.evaluation import run_test_episodes, two_policies
 from jaxrl_robot.types import Trainer
-from train.presets import BRAX_PPO, BRAX_SAC, brax_ppo_config, brax_sac_ddpg_config
+from train.presets import (
+    BRAX_PPO,
+    BRAX_SAC,
+    TD3_OWN,
+    brax_ppo_config,
+    brax_sac_ddpg_config,
+    ddpg_config_of_sac_row,
+    playground_row,
+    playground_task,
+    ppo_config_of_row,
+)
 from train.td3 import TD3_SETTINGS
 
 ALGOS = {"ppo": ("PPO", "ppo", BRAX_PPO), "td3": ("TD3", "sac", BRAX_SAC), "ddpg": ("DDPG", "sac", BRAX_SAC)}
 """``--algo``: (our algorithm's name, brax's peer, the table of tasks and settings)."""
 
 
+PLAYGROUND = "playground:"
+"""The prefix of a MuJoCo Playground task (``playground:CartpoleBalance``)."""
+
+
+def is_playground(task: str) -> bool:
+    """Whether ``task`` is a MuJoCo Playground env (``playground:<Name>``) rather than one of brax's."""
+    return task.startswith(PLAYGROUND)
+
+
 def brax_row(task: str, num_envs: int, algo: str = "ppo") -> dict[str, float]:
-    """The task's row of ``algo``'s table; with ``num_envs`` that many envs (PPO: the batch scaled alike,
-    the same unrolls per env and mini-batches per pass: a small machine's version of the task)."""
-    row = dict(ALGOS[algo][2][task])
+    """The task's row of ``algo``'s table (a ``playground:<Name>`` task: MuJoCo Playground's own settings of
+    ``algo``'s brax peer, :func:`train.presets.playground_row`); with ``num_envs`` that many envs (PPO: the
+    batch scaled alike, the same unrolls per env and mini-batches per pass: a small machine's version of the
+    task)."""
+    row = playground_row(task, ALGOS[algo][1]) if is_playground(task) else dict(ALGOS[algo][2][task])
     if num_envs:
         if algo == "ppo":
             row["batch_size"] = max(1, int(row["batch_size"] * num_envs) // int(row["num_envs"]))
@@ -107,9 +141,12 @@ def whole_epochs(steps: int, per_step: int, num_evals: int) -> int:
 def brax_ppo_steps(row: dict[str, float], steps: int, num_evals: int = 10) -> int:
     """The env steps brax's ``ppo.train`` makes of a ``steps`` budget: whole training steps of
     ``batch_size · num_minibatches · unroll_length · action_repeat`` env steps, ``ceil`` of the budget over
-    ``num_evals − 1`` epochs of them (brax/training/agents/ppo/train.py), so never fewer than ``steps``."""
+    ``num_evals − 1`` epochs of them (brax/training/agents/ppo/train.py), so never fewer than ``steps``; with
+    the row's ``num_resets_per_eval`` R (MuJoCo Playground's rows: 10) an epoch is R rounds of ``ceil`` of
+    the budget over ``(num_evals − 1) · R`` training steps."""
     per_step = int(row["batch_size"]) * int(row["num_minibatches"]) * int(row["unroll_length"])
-    return whole_epochs(steps, per_step * int(row.get("action_repeat", 1)), num_evals)
+    resets = max(int(row.get("num_resets_per_eval", 0)), 1)
+    return whole_epochs(steps, per_step * int(row.get("action_repeat", 1)) * resets, num_evals)
 
 
 def brax_sac_steps(row: dict[str, float], steps: int, num_evals: int = 10) -> int:
@@ -131,14 +168,23 @@ def our_config(algo: str, task: str, action_size: int, row: dict[str, float], st
     ``tuned=false`` leaves out the task's :data:`train.presets.BRAX_PPO_TUNED` fields; TD3's and
     DDPG's ``own_settings=true|false`` TD3's own settings or the SAC row's, and ``tuned=false`` leaves
     out the task's :data:`train.presets.BRAX_SAC_TUNED` entries
-    (:func:`train.presets.brax_sac_ddpg_config`)."""
+    (:func:`train.presets.brax_sac_ddpg_config`). A ``playground:<Name>`` task's row is converted by the same
+    code (:func:`train.presets.ppo_config_of_row`, brax's own update unless ``segments=false``;
+    :func:`train.presets.ddpg_config_of_sac_row`); it has no tuned fields."""
     overrides = dict(overrides or {})
     tuned = bool(overrides.pop("tuned", True))
+    own = bool(overrides.pop("own_settings", True)) if algo != "ppo" else True
     if algo == "ppo":
         segments = overrides.pop("segments", None)  # None: the task's preset
-        config = brax_ppo_config(task, action_size, None if segments is None else bool(segments), tuned, **row)
+        if is_playground(task):
+            config = ppo_config_of_row(row, action_size, True if segments is None else bool(segments))
+        else:
+            config = brax_ppo_config(task, action_size, None if segments is None else bool(segments), tuned, **row)
     else:
-        config = brax_sac_ddpg_config(task, bool(overrides.pop("own_settings", True)), tuned, **row)
+        if is_playground(task):
+            config = ddpg_config_of_sac_row(row, TD3_OWN if own else None)
+        else:
+            config = brax_sac_ddpg_config(task, own, tuned, **row)
         config = config.replace(**TD3_SETTINGS) if algo == "td3" else config
     return apply_overrides(config.replace(total_steps=steps), overrides, type(config).__name__).validate()
 
@@ -309,11 +355,13 @@ def ours(env: Any, task: str, row: dict[str, float], steps: int, seeds: int, eva
 
 def theirs(env: Any, row: dict[str, float], steps: int, seeds: int, peer: str = "ppo",
            done: Callable[[dict[str, Any]], None] | None = None,
-           mode: str = "stochastic", first_seed: int = 0, evals: int = 10) -> dict[str, Any]:  # fmt: skip
+           mode: str = "stochastic", first_seed: int = 0, evals: int = 10,
+           wrap_env_fn: Callable[..., Any] | None = None) -> dict[str, Any]:  # fmt: skip
     """brax's ``ppo.train`` (``peer='sac'``: ``sac.train``) with the task's ``row`` (brax's terms) and
     ``evals`` evaluations, seeds ``first_seed … first_seed + seeds − 1`` one after another, evaluated in
     ``mode``; ``done`` is called with the record of the seeds so far after each one, and before the first
-    one finishes, after each of its evaluations with that seed's so far (``cut``: a run cut short keeps it)."""
+    one finishes, after each of its evaluations with that seed's so far (``cut``: a run cut short keeps it).
+    ``wrap_env_fn``: brax's ``wrap_env_fn`` (a MuJoCo Playground env: its ``wrapper.wrap_for_brax_training``)."""
     from benchmarks.peers.brax_ppo import train_published
 
     runs: list[dict[str, Any]] = []
@@ -331,7 +379,8 @@ def theirs(env: Any, row: dict[str, float], steps: int, seeds: int, peer: str = 
 
     for seed in range(first_seed, first_seed + seeds):
         runs.append(train_published(env, row, steps, seed, peer, deterministic_eval=mode == "deterministic",
-                                    num_evals=evals, on_eval=so_far))  # fmt: skip
+                                    num_evals=evals, on_eval=so_far,
+                                    **({"wrap_env_fn": wrap_env_fn} if wrap_env_fn else {})))  # fmt: skip
         record = report(runs)
     return record
 
@@ -359,10 +408,18 @@ def to_markdown(result: dict[str, Any]) -> str:
     name, peer, _ = ALGOS[result.get("algo", "ppo")]
     table = "BRAX_PPO`, ours with the task's fields of `train.presets.BRAX_PPO_TUNED` unless `--ours tuned=false" \
         if peer == "ppo" else "BRAX_SAC"
-    out = [f"# Our {name} beside brax's {peer.upper()} on brax's tasks — {result['device']}", "",
+    source = f"`train.presets.{table}`"
+    pg = [t["task"] for t in result["tasks"] if is_playground(t["task"])]
+    if pg:
+        source += ("; on MuJoCo Playground's tasks its own `brax_" + ("ppo" if peer == "ppo" else "sac")
+                   + "_config` (`train.presets.playground_row`; ours through the same conversion), brax's side on "
+                   "the env wrapped by Playground's `wrapper.wrap_for_brax_training` as its training scripts do, "
+                   f"Playground config_overrides {result.get('playground_config', {})}")  # fmt: skip
+    where = "MuJoCo Playground's tasks" if len(pg) == len(result["tasks"]) else "brax's tasks"
+    out = [f"# Our {name} beside brax's {peer.upper()} on {where} — {result['device']}", "",
            f"Backend `{result['backend']}`; {result['seeds']} seeds of ours ({result['seed_map']}), "
            f"{result['brax_seeds']} of brax's (one after another); the same env steps and settings "
-           f"(`train.presets.{table}`). Return: each side's final evaluation on fresh episodes (ours: "
+           f"({source}). Return: each side's final evaluation on fresh episodes (ours: "
            f"{result['eval_episodes']} episodes; brax: 128) in the mode its column names — sampled actions "
            "(brax's default) or the mean action; ours also with the mean action; ± the std over seeds. Wall: "
            "compilation included. Ours against brax's: the difference of the means with its 95 % confidence "
@@ -447,6 +504,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                    "then --merge)")  # fmt: skip
     p.add_argument("--steps", type=nonnegative, default=0, help="env steps per seed (0: brax's budget of the task)")
     p.add_argument("--backend", default="mjx", help="brax physics backend (mjx, generalized, positional, spring)")
+    p.add_argument("--env-config", nargs="*", default=[], metavar="KEY=VALUE",
+                   help="playground:<Name> tasks: MuJoCo Playground's config_overrides (impl=jax unless given, e.g. "
+                   "impl=warp)")  # fmt: skip
     p.add_argument("--eval-episodes", type=positive, default=128)
     p.add_argument("--evals", type=at_least(2), default=10,
                    help="evaluations of each side along training, the first before it (brax's num_evals; at "
@@ -494,9 +554,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         p.error(f"--evals {args.evals}: at least 2 (one before training, one at its end)")
     table = ALGOS[args.algo][2]
     args.tasks = args.tasks or list(table)
-    unknown = [t for t in args.tasks if t not in table]
+    try:
+        unknown = [t for t in args.tasks if not (playground_task(t, args.algo) if is_playground(t) else t in table)]
+    except ValueError as e:  # MuJoCo Playground is not installed
+        p.error(f"--tasks: {e}")
     if unknown:
-        p.error(f"--tasks {unknown[0]!r}: no brax settings for --algo {args.algo}; valid: {', '.join(table)}")
+        p.error(f"--tasks {unknown[0]!r}: no brax settings for --algo {args.algo}; valid: {', '.join(table)} or "
+                f"{PLAYGROUND}<Name> of MuJoCo Playground's dm_control_suite")  # fmt: skip
     overrides = pairs(args.ours)
     try:  # a bad --ours field ends here with one line, before anything trains
         our_config(args.algo, args.tasks[0], 1, brax_row(args.tasks[0], args.num_envs, args.algo), 1, overrides)
@@ -515,16 +579,20 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                                                       f"evaluation key fold_in(PRNGKey(seed), EVAL_KEY_OFFSET); brax: "
                                                       f"its seed argument {brax_ids[0]}..{brax_ids[-1]}"))  # fmt: skip
     stem = stem_of(args.out, device_label(), args.algo, args.label)
+    env_config = pairs(args.env_config)
     result = {"benchmark": "brax_tasks", "algo": args.algo, "provenance": prov, "device": device_label(),
               "backend": args.backend, **({"note": args.note} if args.note else {}),
+              **({"playground_config": {"impl": "jax", **env_config}} if any(map(is_playground, args.tasks)) else {}),
               "seeds": args.seeds, "seed_map": args.seed_map, "brax_seeds": brax_seeds,
               "eval_episodes": args.eval_episodes, "evals": args.evals,
               "figures": stem + "-figures", "tasks": []}  # fmt: skip
     os.makedirs(result["figures"], exist_ok=True)
     for task in args.tasks:
-        env = brax_envs.get_environment(task, backend=args.backend)
-        steps = args.steps or int(table[task]["num_timesteps"])
-        settings = {**brax_row(task, args.num_envs, args.algo), **pairs(args.row)}
+        env, theirs_env, wrap_env_fn = playground_envs(task, env_config) if is_playground(task) else (
+            (brax_envs.get_environment(task, backend=args.backend),) * 2 + (None,))  # fmt: skip
+        published = brax_row(task, args.num_envs, args.algo)
+        steps = args.steps or int(published["num_timesteps"])
+        settings = {**published, **pairs(args.row)}
         counts = brax_ppo_steps if args.algo == "ppo" else brax_sac_steps
         our_steps = counts(settings, steps, args.evals)  # brax's count of env steps
         row = {"task": task, "settings": settings, "sides": []}
@@ -548,12 +616,23 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                 row["brax"] = record
                 write(stem, result)
 
-            theirs(env, settings, steps, brax_seeds, ALGOS[args.algo][1], partial, args.eval_mode,
-                   brax_ids[0], args.evals)
+            theirs(theirs_env, settings, steps, brax_seeds, ALGOS[args.algo][1], partial, args.eval_mode,
+                   brax_ids[0], args.evals, wrap_env_fn)
             print(task, "brax", [round(r, 1) for r in row["brax"]["returns"]], f"{row['brax']['wall_s']:.0f} s",
                   flush=True)  # fmt: skip
         write(stem, result, echo=task == args.tasks[-1])
     return result
+
+
+def playground_envs(task: str, config_overrides: dict[str, Any]) -> tuple[Any, Any, Callable[..., Any]]:
+    """``(ours, brax's, wrap_env_fn)`` of a ``playground:<Name>`` task: one Playground env object
+    (``impl='jax'`` unless ``config_overrides`` say otherwise), ours through :class:`envs_mjx.playground.PlaygroundEnv`,
+    brax's as it is with Playground's ``wrapper.wrap_for_brax_training``, as Playground's training scripts
+    wrap it for brax's trainers."""
+    from envs_mjx import playground
+
+    ours_env = playground.load(task, **config_overrides)
+    return ours_env, ours_env.env, playground.require().wrapper.wrap_for_brax_training
 
 
 def missing(side: dict[str, Any]) -> dict[str, Any]:

@@ -102,11 +102,15 @@ def run_brax_ppo(
 def train_published(
     env: Any, row: dict[str, float], num_timesteps: int, seed: int = 0, algo: str = "ppo",
     deterministic_eval: bool = False, num_evals: int = 10, on_eval: Callable[[dict[str, Any]], None] | None = None,
+    wrap_env_fn: Callable[..., Any] | None = None,
 ) -> dict[str, Any]:  # fmt: skip
     """brax's ``ppo.train`` (or, with ``algo='sac'``, ``sac.train``) with a task's published settings (``row``:
-    brax's own argument names, a row of ``train.presets.BRAX_PPO`` or ``BRAX_SAC``) for ``num_timesteps``
-    env steps; brax's default networks, normalised observations, ``num_evals`` evaluations (the first before
-    training), each followed by ``on_eval`` with the record so far.
+    brax's own argument names, a row of ``train.presets.BRAX_PPO`` or ``BRAX_SAC``, or MuJoCo Playground's
+    ``train.presets.playground_row``) for ``num_timesteps`` env steps; brax's default networks (the row's
+    ``network_factory`` keywords over them where it has them), normalised observations (unless the row's
+    ``normalize_observations`` is false), PPO's ``num_resets_per_eval`` where the row has it, ``num_evals``
+    evaluations (the first before training), each followed by ``on_eval`` with the record so far.
+    ``wrap_env_fn``: brax's ``wrap_env_fn`` (a MuJoCo Playground env: ``wrapper.wrap_for_brax_training``).
 
     Returns ``final_return`` (brax's last ``eval/episode_reward``: 128 episodes of the policy's sampled
     actions, brax's default, or with ``deterministic_eval`` of its mode), ``curve_steps`` / ``curve``
@@ -114,19 +118,27 @@ def train_published(
     at its last evaluation).
     """
     if algo == "ppo":
+        from brax.training.agents.ppo import networks
         from brax.training.agents.ppo import train as trainer
 
         names = ("num_envs", "batch_size", "num_minibatches", "unroll_length", "num_updates_per_batch",
-                 "episode_length")  # fmt: skip
+                 "episode_length", *(("num_resets_per_eval",) if "num_resets_per_eval" in row else ()))  # fmt: skip
         extra = {"entropy_cost": float(row["entropy_cost"])}
+        make_networks = networks.make_ppo_networks
     elif algo == "sac":
+        from brax.training.agents.sac import networks
         from brax.training.agents.sac import train as trainer
 
         names = ("num_envs", "batch_size", "grad_updates_per_step", "episode_length", "max_replay_size",
                  "min_replay_size")  # fmt: skip
         extra = {}
+        make_networks = networks.make_sac_networks
     else:
         raise ValueError(f"algo={algo!r}: expected 'ppo' or 'sac'")
+    if row.get("network_factory"):
+        extra["network_factory"] = functools.partial(make_networks, **row["network_factory"])
+    if wrap_env_fn is not None:
+        extra["wrap_env_fn"] = wrap_env_fn
 
     install_shim()
     evals: list[tuple[int, float]] = []
@@ -148,7 +160,7 @@ def train_published(
         environment=env,
         num_timesteps=int(num_timesteps),
         num_evals=int(num_evals),
-        normalize_observations=True,
+        normalize_observations=bool(row.get("normalize_observations", True)),
         deterministic_eval=deterministic_eval,
         action_repeat=int(row.get("action_repeat", 1)),
         discounting=float(row["discounting"]),

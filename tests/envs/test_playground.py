@@ -220,3 +220,33 @@ def test_every_registered_dm_control_name_is_valid_and_the_default_impl_is_jax()
     assert env.env.mjx_model.impl.value == "jax" and env.name == "playground:PendulumSwingup"
     assert math.isclose(env.dt, 0.02) and env.episode_length == 1000  # the wrapped env's attributes
 
+
+def test_presets_and_the_benchmark_convert_playground_s_own_rows_by_hand():
+    """Playground's ``brax_ppo_config("CartpoleBalance")`` (2048 envs, batch 1024, 32 mini-batches, unrolls of 30,
+    16 passes, 10 resets per evaluation) through the code that converts brax's rows: per lane 1024 · 32 / 2048
+    = 16 unrolls of 30 = 480 steps, brax's update on mini-batches of 1024 unrolls (30 720 steps), 16 · 32 = 512
+    steps each; the env's own time limit. brax trains ``num_resets_per_eval`` rounds per evaluation: 60 M over 9
+    epochs of 10 rounds of 983 040 steps is 0.68 -> 1, so 9 · 10 · 983 040 env steps, which ours then makes too.
+    The SAC row under TD3's own settings: 128 lanes, one update of 256 per lane step, the row's memory."""
+    from benchmarks import brax_tasks
+    from train import presets
+
+    row = presets.playground_row("playground:CartpoleBalance")
+    c = presets.playground_ppo_config("playground:CartpoleBalance", 1)
+    assert c == presets.ppo_config_of_row(row, 1, True)
+    assert (c.num_envs, c.unroll_length, c.minibatch_size, c.actor_updates) == (2048, 480, 30720, 512)
+    assert (c.advantage_segment, c.total_steps, c.gamma, c.reward_scale) == (30, 60_000_000, 0.995, 10)
+    assert (c.actor_lr, c.entropy_coef, c.episode_length, c.tanh_actions) == (1e-3, 1e-2, 1000, True)
+    assert presets._ppo_base_preset("auto", "playground:CartpoleBalance", 250, 1).episode_length == 250
+    assert brax_tasks.brax_ppo_steps(row, 60_000_000) == 9 * 10 * 983_040
+    small = brax_tasks.brax_row("playground:CartpoleBalance", 16)  # the CPU check's 16 envs: batch 8
+    assert brax_tasks.brax_ppo_steps(small, 20_000, 2) == 10 * 8 * 32 * 30
+    ours = brax_tasks.our_config("ppo", "playground:CartpoleBalance", 1, small, 76_800)
+    assert (ours.num_envs, ours.unroll_length, ours.advantage_segment) == (16, 480, 30)
+
+    td3 = presets.ddpg_preset("playground", "playground:CheetahRun", 500, None).replace(**TD3_SETTINGS)
+    assert (td3.num_envs, td3.updates_per_iteration, td3.batch_size, td3.actor_lr) == (128, 128, 256, 3e-4)
+    assert (td3.buffer_size, td3.learning_starts, td3.total_steps, td3.episode_length) == (4_194_304, 8192, 10**7, 500)
+    for algo, preset in (("ppo", "playground"), ("ddpg", "playground"), ("td3", "playground"), ("a2c", "cpu")):
+        assert presets.resolve_preset("auto", "playground:WalkerWalk", algo) in (preset, "fast"), algo
+    assert presets.resolve_preset("cpu", "playground:WalkerWalk") == "cpu"
