@@ -1,10 +1,8 @@
 """MuJoCo Playground's envs in the library: the adapter and the training wrappers against Playground's own
 ``reset`` / ``step`` (an oracle: the same keys and actions), PPO's ``make_train`` on a 2-D ``dm_control_suite``
 task as ``registry.load`` gives it (``tests/cli/test_playground_cli.py``: ``train.ppo`` on the 1-D
-``CartpoleBalance``), TD3 on one, a dict observation, and the one-line errors.
-
-XLA:CPU compiles MJX's physics slowly (seconds per program); the library's own programs here compile with
-its fusion emitters off (:data:`FAST_COMPILE`), which halves that and changes no result the tests read.
+``CartpoleBalance``), TD3 on a 1-D one, a dict observation, the one-line errors, and Playground's own
+settings through the presets' and the benchmark's conversions.
 """
 
 from __future__ import annotations
@@ -25,14 +23,6 @@ from jaxrl_robot.agents import ddpg, ppo
 from train import common
 from train.td3 import TD3_SETTINGS
 
-FAST_COMPILE = {"xla_cpu_use_fusion_emitters": False} if jax.default_backend() == "cpu" else {}
-"""XLA:CPU option for the tests' own programs: MJX's step compiles in about half the time (and runs slower,
-which these budgets do not feel)."""
-
-
-def jit(fn):
-    return jax.jit(fn, compiler_options=FAST_COMPILE or None)
-
 
 class Compiled:
     """A Playground env whose ``reset`` and ``step`` are compiled once: the oracle's paths below call the same
@@ -40,7 +30,7 @@ class Compiled:
 
     def __init__(self, env):
         self.env, self._config, self.action_size = env, env._config, env.action_size
-        self.reset, self.step = jit(env.reset), jit(env.step)
+        self.reset, self.step = jax.jit(env.reset), jax.jit(env.step)
 
 
 @pytest.fixture(scope="module")
@@ -111,7 +101,7 @@ def test_ppo_make_train_trains_a_playground_env_as_registry_loads_it():
     env = registry.load("PointMass", config_overrides={"impl": "jax", "episode_length": 16})
     assert (env.action_size, env.observation_size) == (2, 4)
     config = ppo.PPOConfig(total_steps=256, reset_refresh=1.0)  # 4 lanes x 8 steps per iteration: 8 iterations
-    _, metrics = jit(ppo.make_train(config, env))(jax.random.PRNGKey(0))
+    _, metrics = jax.jit(ppo.make_train(config, env))(jax.random.PRNGKey(0))
     assert metrics["episodes"].shape == (config.total_iterations,) and float(jnp.sum(metrics["episodes"])) == 16
     for k in ("actor_loss", "critic_loss", "episode_return"):
         values = np.asarray(metrics[k])
@@ -127,7 +117,7 @@ def test_td3_trains_a_playground_env():
         schedule="steps", total_steps=256, num_envs=4, unroll_length=4, updates_per_iteration=2, learning_starts=32,
         batch_size=16, buffer_size=256, actor_hidden=(32,), critic_hidden=(32,), **TD3_SETTINGS,
     )  # fmt: skip
-    _, metrics = jit(ddpg.make_train(config, env))(jax.random.PRNGKey(1))
+    _, metrics = jax.jit(ddpg.make_train(config, env))(jax.random.PRNGKey(1))
     assert float(jnp.sum(metrics["episodes"])) == 16
     for k in ("critic_loss", "actor_loss"):
         assert np.all(np.isfinite(np.asarray(metrics[k]))), k
@@ -187,7 +177,7 @@ def test_a_dict_observation_gives_the_policy_its_state_entry_and_the_env_its_who
         playground.PlaygroundEnv(raw, obs_key="pixels")
 
     config = ppo.PPOConfig(total_steps=320, episode_length=10)
-    _, metrics = jit(ppo.make_train(config, raw))(jax.random.PRNGKey(0))
+    _, metrics = jax.jit(ppo.make_train(config, raw))(jax.random.PRNGKey(0))
     assert float(jnp.sum(metrics["episodes"])) >= 32  # 4 lanes of 80 steps: at least 8 episodes each
     assert np.all(np.isfinite(np.asarray(metrics["critic_loss"])))
 
