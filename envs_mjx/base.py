@@ -54,6 +54,7 @@ from brax.envs.base import Env, State, Wrapper
 from envs_mjx.config import apply_overrides
 
 __all__ = [
+    "DEFAULT_EPISODE_LENGTH",
     "ActionRepeatWrapper",
     "ActionShapeError",
     "AutoResetWrapper",
@@ -65,6 +66,7 @@ __all__ = [
     "TanhActionWrapper",
     "VmapWrapper",
     "check_action",
+    "default_episode_length",
     "map_lanes",
     "physics_of",
     "sanitize_action",
@@ -513,6 +515,15 @@ class PoolResetWrapper(_ParamWrapper):
         return with_physics(nstate, physics).replace(obs=pick(pool["obs"], nstate.obs), info=new_info)
 
 
+DEFAULT_EPISODE_LENGTH = 1000
+"""The time limit of an env that sets none (brax's: ``brax.envs.create`` and its training wrapper)."""
+
+
+def default_episode_length(env: Env) -> int:
+    """``env.episode_length`` (ours, a MuJoCo Playground env's config), else :data:`DEFAULT_EPISODE_LENGTH`."""
+    return int(getattr(env, "episode_length", None) or DEFAULT_EPISODE_LENGTH)
+
+
 def wrap_for_training(
     env: Env,
     episode_length: int | None = None,
@@ -531,16 +542,14 @@ def wrap_for_training(
 
     Args:
       env: an unbatched env.
-      episode_length: time limit; defaults to ``env.episode_length`` when the env has one.
+      episode_length: time limit; defaults to :func:`default_episode_length` of ``env``.
       num_envs: if given, ``reset`` takes one key and splits it into ``num_envs`` lanes.
       reset_refresh: fraction of lanes redrawn per step, in ``(0, 1]``.
       reset_group: lanes per pool group (see :class:`PoolResetWrapper`).
       lane_group: step the lanes in groups of this many (0: all at once; see :func:`map_lanes`).
     """
     if episode_length is None:
-        episode_length = getattr(env, "episode_length", None)
-        if episode_length is None:
-            raise ValueError("episode_length is required for an env without a default episode_length")
+        episode_length = default_episode_length(env)
     if not 0.0 < float(reset_refresh) <= 1.0:
         raise ValueError(f"reset_refresh={reset_refresh!r} must be in (0, 1]")
     timed = EpisodeWrapper(env, episode_length)

@@ -37,7 +37,7 @@ import optax
 from brax.envs.base import Env, State
 from flax import struct
 
-from envs_mjx.base import wrap_for_training
+from envs_mjx.base import default_episode_length, wrap_for_training
 from envs_mjx.config import ConfigError, check_choice, check_range
 from jaxrl_robot import parallel
 from jaxrl_robot.acting import per_lane_keys
@@ -149,7 +149,7 @@ class ActorCriticConfig:
     reward_scale: float = 1.0
     """Multiply rewards by this before computing returns."""
     episode_length: int = 0
-    """Time limit in steps (0: the environment's own ``episode_length``)."""
+    """Time limit in steps (0: the environment's own ``episode_length``, else brax's default of 1000)."""
 
     @property
     def total_iterations(self) -> int:
@@ -313,7 +313,8 @@ def setup(
     Args:
       config: the trainer's hyper-parameters (validated here).
       env: an *unbatched* ``brax.envs.base.Env``; wrapped with ``envs_mjx.wrap_for_training``
-        with the time limit ``config.episode_length`` (0: ``env.episode_length``).
+        with the time limit ``config.episode_length`` (0: ``envs_mjx.base.default_episode_length(env)``:
+        ``env.episode_length``, else 1000).
       mesh: device mesh from ``parallel.lane_mesh`` (default: all devices).
       iterations_per_update: iterations per ``update`` call (one chunk), ``>= 1``.
       wrap_options: further keywords of ``wrap_for_training`` (``reset_refresh``, ``reset_group``,
@@ -324,9 +325,7 @@ def setup(
         raise ConfigError(f"iterations_per_update={iterations_per_update} must be >= 1")
     mesh = parallel.lane_mesh() if mesh is None else mesh
     local_lanes = parallel.local_lane_count(config.num_envs, mesh)
-    episode_length = config.episode_length or getattr(env, "episode_length", None)
-    if not episode_length:
-        raise ConfigError("episode_length=0: this env has no default episode_length; set episode_length >= 1")
+    episode_length = config.episode_length or default_episode_length(env)
     lane_group = wrap_options.get("lane_group", 0)
     if lane_group and local_lanes % lane_group:
         raise ConfigError(f"lane_group={lane_group} must divide the lanes per device ({local_lanes})")

@@ -240,3 +240,17 @@ def test_presets_and_the_benchmark_convert_playground_s_own_rows_by_hand():
     for algo, preset in (("ppo", "playground"), ("ddpg", "playground"), ("td3", "playground"), ("a2c", "cpu")):
         assert presets.resolve_preset("auto", "playground:WalkerWalk", algo) in (preset, "fast"), algo
     assert presets.resolve_preset("cpu", "playground:WalkerWalk") == "cpu"
+
+
+def test_a_default_ppo_config_trains_a_brax_env_that_sets_no_time_limit():
+    """brax's envs have no ``episode_length``: the wrappers then take brax's own default of 1000 steps
+    (``envs_mjx.base.DEFAULT_EPISODE_LENGTH``), so ``make_train`` needs nothing beyond the budget."""
+    from brax import envs as brax_envs
+
+    from envs_mjx.base import DEFAULT_EPISODE_LENGTH, default_episode_length, wrap_for_training
+
+    env = brax_envs.get_environment("fast")
+    assert not hasattr(env, "episode_length") and default_episode_length(env) == DEFAULT_EPISODE_LENGTH == 1000
+    assert wrap_for_training(env).env.env.episode_length == 1000  # VmapWrapper(AutoResetWrapper(EpisodeWrapper))
+    _, metrics = jax.jit(ppo.make_train(ppo.PPOConfig(total_steps=64), env))(jax.random.PRNGKey(0))
+    assert np.all(np.isfinite(np.asarray(metrics["critic_loss"]))) and float(jnp.sum(metrics["episodes"])) == 0

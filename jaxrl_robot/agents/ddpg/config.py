@@ -60,7 +60,7 @@ class DDPGConfig:
     num_envs: int = 16
     """Parallel lanes: episodes per cycle ('episodes') or continuously running envs ('steps')."""
     episode_length: int = 0
-    """Time limit in steps (0: the environment's own ``episode_length``)."""
+    """Time limit in steps (0: the environment's own ``episode_length``, else brax's default of 1000)."""
     batch_size: int = 128
     """Mini-batch size b_n (of each synchronous worker when distributed)."""
     buffer_size: int = 1_000_000

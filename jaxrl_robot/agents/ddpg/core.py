@@ -21,6 +21,7 @@ import optax
 from brax.envs.base import Env, State
 from flax import struct
 
+from envs_mjx.base import default_episode_length
 from envs_mjx.config import ConfigError
 from envs_mjx.playground import adapt
 from jaxrl_robot import parallel
@@ -180,9 +181,7 @@ def setup(
                 f"termination_metric={config.termination_metric!r} is not a metric of this env; "
                 f"choose from {sorted(metrics)}"
             )
-    T = int(config.episode_length or getattr(env, "episode_length", 0) or 0)
-    if T < 1:
-        raise ConfigError("episode_length=0: this env has no default episode_length; set episode_length >= 1")
+    T = int(config.episode_length or default_episode_length(env))
     mesh = parallel.lane_mesh() if mesh is None else mesh
     local_lanes = parallel.local_lane_count(config.num_envs, mesh)
     obs_size, action_size = int(env.observation_size), int(env.action_size)
