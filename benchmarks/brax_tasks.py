@@ -468,7 +468,7 @@ def to_markdown(result: dict[str, Any]) -> str:
         if t["ours"].get("devices", 1) > 1:
             out += [f"Ours on {t['task']}: each seed's lanes spread over {t['ours']['devices']} devices.", ""]
     for t in result["tasks"]:
-        out.append(f"![{t['task']}]({os.path.basename(result['figures'])}/{t['task']}.png)")
+        out.append(f"![{t['task']}]({os.path.basename(result['figures'])}/{t['task'].replace(':', '-')}.png)")
     return "\n".join(out) + "\n"
 
 
@@ -485,7 +485,8 @@ def figure(task: dict[str, Any], out_dir: str) -> str | None:
                        for seed in task[name]["curves"]]
         for name in ("ours", "brax") if task.get(name, {}).get("curves")
     }  # fmt: skip
-    return plots.plot_seed_bands(curves, "episode_return", out_dir, f"{task['task']}.png", task["task"])
+    name = task["task"].replace(":", "-")  # playground:<Name> → a file name every file system and copy takes
+    return plots.plot_seed_bands(curves, "episode_return", out_dir, f"{name}.png", task["task"])
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
