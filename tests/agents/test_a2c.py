@@ -330,30 +330,34 @@ def test_config_errors_name_the_field():
 
 
 _DEVICES_SCRIPT = """
-import sys
+import os, sys
 sys.path.insert(0, {root!r})
 import jax, numpy as np
 from jaxrl_robot import parallel
 from jaxrl_robot.agents.a2c import make_trainer
 from tests.agents.test_a2c import K3_CONFIG, Reach
 assert len(jax.devices()) == 3
-tr = make_trainer(K3_CONFIG, Reach(max_steps=5), mesh=parallel.lane_mesh(3), iterations_per_update=1)
-s = jax.jit(tr.init)(jax.random.PRNGKey(0))
-update = jax.jit(tr.update)
-for _ in range(3):
-    s, m = update(s)
 ref = np.load({ref!r})
-leaves = jax.tree.leaves(jax.device_get(s))
-assert len(leaves) == len(ref.files)
-for i, leaf in enumerate(leaves):
-    np.testing.assert_allclose(leaf, ref[f"a{{i}}"], rtol=1e-4, atol=1e-5)
-print("ok", float(m["staleness_mean"]))
+for impl in ("shard_map", "vmap"):
+    os.environ["JAXRL_LANE_MAP"] = impl
+    mesh = parallel.lane_mesh(3)
+    assert parallel.lane_map_impl(mesh) == impl
+    tr = make_trainer(K3_CONFIG, Reach(max_steps=5), mesh=mesh, iterations_per_update=1)
+    s = jax.jit(tr.init)(jax.random.PRNGKey(0))
+    update = jax.jit(tr.update)
+    for _ in range(3):
+        s, m = update(s)
+    leaves = jax.tree.leaves(jax.device_get(s))
+    assert len(leaves) == len(ref.files)
+    for i, leaf in enumerate(leaves):
+        np.testing.assert_allclose(leaf, ref[f"a{{i}}"], rtol=1e-4, atol=1e-5, err_msg=impl)
+    print(impl, "ok", float(m["staleness_mean"]))
 """
 
 
-@pytest.mark.parametrize("impl", ["shard_map", "vmap"])
-def test_a3c_on_three_devices_gives_the_same_run_as_on_one(a3c_k3, tmp_path, impl):
-    """One worker per device: gathered gradients, one push order, re-sync of the local snapshots."""
+def test_a3c_on_three_devices_gives_the_same_run_as_on_one(a3c_k3, tmp_path):
+    """One worker per device: gathered gradients, one push order, re-sync of the local snapshots; both lane
+    maps of ``jaxrl_robot.parallel`` (``shard_map``, ``vmap``), one after the other in one process."""
     _, init, update = a3c_k3
     state = init(jax.random.PRNGKey(0))
     for _ in range(3):
@@ -361,11 +365,10 @@ def test_a3c_on_three_devices_gives_the_same_run_as_on_one(a3c_k3, tmp_path, imp
     ref = str(tmp_path / "one_device.npz")
     np.savez(ref, **{f"a{i}": np.asarray(x) for i, x in enumerate(jax.tree.leaves(jax.device_get(state)))})
     script = _DEVICES_SCRIPT.format(root=ROOT, ref=ref)
-    env = cpu_env(devices=3, JAXRL_LANE_MAP=impl)
     cmd = [sys.executable, "-c", textwrap.dedent(script)]
-    res = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env=env)
+    res = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env=cpu_env(devices=3))
     assert res.returncode == 0, res.stderr[-3000:]
-    assert res.stdout.strip().splitlines()[-1] == "ok 2.0"
+    assert res.stdout.strip().splitlines()[-2:] == ["shard_map ok 2.0", "vmap ok 2.0"]
 
 
 # ---------------------------------------------------------------------------------------------
