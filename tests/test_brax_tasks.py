@@ -6,8 +6,10 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from benchmarks import brax_tasks, provenance
+from tests.subproc import cache_every_program
 from train.presets import BRAX_PPO, BRAX_SAC
 
 
@@ -284,7 +286,14 @@ def test_eval_points_spread_brax_s_ten_evaluations_over_the_updates():
     assert brax_tasks.eval_points(18, 3) == [0, 9, 18] and brax_tasks.eval_points(18, 2) == [0, 18]  # --evals
 
 
-def test_ours_evaluates_along_training_without_changing_it():
+@pytest.fixture
+def every_program_cached():
+    """Runs of the same trainer load its programs from the persistent compilation cache."""
+    with cache_every_program():
+        yield
+
+
+def test_ours_evaluates_along_training_without_changing_it(every_program_cached):
     """Training in segments with evaluations between them ends where one uninterrupted run ends: the
     final mean-action return equals that of the same trainer run in one go (same keys)."""
     import jax

@@ -2,9 +2,9 @@
 
 Two processes with two CPU devices each train the tiny PPO run of ``test_ppo_cli.py`` on 4 global
 lanes, stop half-way and resume (every process restores its shards of the checkpoint); one process
-with one device trains the same lanes without a break. The final parameters agree, the two
-processes share one run directory, and only process 0 writes its files (process 1 writes only
-its shards of the checkpoints, as orbax does).
+with one device (on a CPU host, the test's own) trains the same lanes without a break. The final
+parameters agree, the two processes share one run directory, and only process 0 writes its files
+(process 1 writes only its shards of the checkpoints, as orbax does).
 """
 
 import glob
@@ -16,8 +16,11 @@ import sys
 import textwrap
 import time
 
+import jax
+
 from tests.cli.test_ppo_cli import TINY, assert_same_learnt_state, final_checkpoint
 from tests.subproc import ROOT, cpu_env
+from train import ppo
 
 ARGS = ["--env", "brax:fast", "--episode-length", "16", "--total-steps", "256", "--chunks", "2",
         "--checkpoint-every", "1", "--eval-episodes", "2", "--seed", "7", "--progress", "False", *TINY]  # fmt: skip
@@ -103,10 +106,25 @@ def _wait_all(procs: dict[str, subprocess.Popen]) -> dict[str, str]:
     return outputs
 
 
+def _train_reference(out: str, procs: dict[str, subprocess.Popen], log: str, cache: str) -> None:
+    """The uninterrupted run on one CPU device, while ``procs`` run: in this process on a CPU host (one start-up
+    less), else in a CPU-pinned process added to ``procs``; ``procs`` are killed if it fails here."""
+    if jax.default_backend() != "cpu":
+        procs["single"] = _start([*ARGS, "--out", out], log, 1, cache)
+        return
+    try:
+        assert ppo.main([*ARGS, "--out", out]) == 0
+    except BaseException:
+        for proc in procs.values():
+            proc.kill()
+            proc.communicate()
+        raise
+
+
 def test_two_processes_train_like_one_and_only_process_0_writes(tmp_path):
     multi, single, cache = tmp_path / "multi", tmp_path / "single", str(tmp_path / "jax_cache")
     procs = _start_pair([*ARGS, "--out", str(multi), "--stop-after-steps", "128"], str(tmp_path / "first"), cache)
-    procs["single"] = _start([*ARGS, "--out", str(single)], str(tmp_path / "single.json"), 1, cache)
+    _train_reference(str(single), procs, str(tmp_path / "single.json"), cache)
     first = _wait_all(procs)
     (run_dir,) = glob.glob(str(multi / "ppo-brax_fast-*"))  # one run directory for both processes
     assert not os.path.exists(os.path.join(run_dir, "eval.json"))  # stopped after chunk 1 of 2
