@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import time
 from collections.abc import Sequence
 from typing import Any
 
@@ -29,29 +28,11 @@ MODES = ("kinematic", "pd")
 
 
 def run(env_name: str, mode: str, lanes: int, seed: int) -> dict[str, float]:
-    """The greedy controller's first episode on ``lanes`` lanes of ``env_name`` in ``mode`` from key
-    ``fold_in(PRNGKey(seed), 1)`` (``PRNGKey(seed)``'s batch compiles the program first)."""
-    import jax
-    import jax.numpy as jnp
+    """The greedy controller's first episode on ``lanes`` lanes of ``env_name`` in ``mode``
+    (:func:`envs_mjx.demo.run`)."""
+    from envs_mjx import demo
 
-    import envs_mjx
-    from envs_mjx import xla
-    from envs_mjx.demo import make_rollout
-
-    env = envs_mjx.make(env_name, mode=mode)
-    rollout = xla.jit(make_rollout(env, lanes))
-    key = jax.random.PRNGKey(seed)
-    t0 = time.perf_counter()
-    jax.block_until_ready(rollout(key))
-    compile_s = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    out = jax.block_until_ready(rollout(jax.random.fold_in(key, 1)))
-    run_s = time.perf_counter() - t0
-    ok = out["success"] > 0
-    return {"successes": int(ok.sum()), "episodes": lanes, "success": float(ok.mean()),
-            "extra": float(jnp.where(ok, out["extra"], 0.0).sum() / jnp.maximum(ok.sum(), 1)),
-            "length": float(out["length"].mean()), "steps_per_s": lanes * env.episode_length / run_s,
-            "compile_s": compile_s}  # fmt: skip
+    return demo.run(mode, lanes, seed, env_name)
 
 
 def to_markdown(result: dict[str, Any]) -> str:
