@@ -1,6 +1,8 @@
 """Shared test set-up.
 
-The suite runs in two pytest-xdist workers (``addopts`` in ``pyproject.toml``). On a GPU machine
+The suite runs in two pytest-xdist workers (``addopts`` in ``pyproject.toml``; ``--dist worksteal``:
+each starts on its half of the tests, in file order, and one that runs out takes tests the other has
+not started, so a file's module fixtures are mostly built once and neither waits long). On a GPU machine
 each worker allocates device memory as it needs it instead of taking most of it up front, so
 the two share the GPU.
 
