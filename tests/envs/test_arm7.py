@@ -17,8 +17,8 @@ import envs_mjx
 from envs_mjx import ConfigError, wrap_for_training, xla
 from envs_mjx.arm7 import path_reward
 
-LANES = 1024
-PD_LANES = 256  # the pd-mode tests step MJX physics (10 substeps a step): fewer lanes than the kinematic ones
+LANES = 512
+PD_LANES = 256  # the pd-mode tests step MJX physics (10 substeps a step)
 EPISODE = 100  # arm7's default max_steps
 
 
@@ -40,7 +40,7 @@ def all_finite(tree):
 
 @pytest.fixture(scope="module")
 def kin():
-    """Kinematic arm7, 1024 lanes with time limit and auto-reset, plain ``jax.jit`` (no XLA options)."""
+    """Kinematic arm7, ``LANES`` lanes with time limit and auto-reset, plain ``jax.jit`` (no XLA options)."""
     env = envs_mjx.make("arm7", mode="kinematic")
     train_env = wrap_for_training(env, num_envs=LANES)
     return env, jax.jit(train_env.reset), jax.jit(train_env.step), jax.jit(lambda s: greedy_action(env, s))
