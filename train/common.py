@@ -39,7 +39,10 @@ processes of a run over several hosts, parses (the preset's defaults for ``--env
    distance; tracking envs: the test episode from ``t = 0`` and the per-axis error sums —
    prints a table, writes ``eval.json`` and draws the figures (``*.png``). The test-episode
    program is compiled in a background thread while training runs, so evaluation at the end
-   costs only its run time.
+   costs only its run time. ``--evals N`` also evaluates during training, after N chunks spread
+   evenly over the run (the last one the final evaluation), with the same program, one row each in
+   ``evals.csv``; their time is kept off the training clock (``train_s``) and counted in
+   ``eval.json``'s ``periodic_eval_s`` (:mod:`train.periodic`).
 
 Several processes
 -----------------
@@ -101,6 +104,7 @@ from jaxrl_robot.evaluation import (
 from jaxrl_robot.logging import MetricsLogger, read_csv
 from jaxrl_robot.plots import plot_tracking, plot_training_curves
 from jaxrl_robot.types import Trainer, as_recurrent
+from train import periodic
 from train.presets import BRAX_PPO_TUNED, BRAX_SAC_TUNED, brax_sac_task, brax_task, resolve_preset
 
 __all__ = [
@@ -180,6 +184,10 @@ class RunSettings:
     that finishes is always evaluated; one stopped early by --stop-after-steps is not."""
     precision: bool = True
     """Reaching envs with a goal threshold (arm7): also report success at 5, 2 and 1 cm."""
+    evals: int = 0
+    """Evaluations during training, 0 or more, spread evenly over the run's chunks (after chunk ceil(i·C/N) of C
+    for i = 1…N, at most one per chunk; the last is the final evaluation), each the final evaluation's program on
+    --eval-episodes episodes, one row each in <run dir>/evals.csv (train/periodic.py). 0: the final one alone."""
     stop_after_steps: int = 0
     """Stop early, resumably, once this many env steps are done (0: run to the end)."""
     progress: bool | None = None
@@ -187,7 +195,7 @@ class RunSettings:
 
     ranges: ClassVar[dict[str, tuple[int, int | None]]] = {
         "seed": (0, MAX_SEED), "seeds": (1, None), "checkpoint_every": (1, None), "eval_episodes": (1, None),
-        "stop_after_steps": (0, None),
+        "stop_after_steps": (0, None), "evals": (0, None),
     }  # fmt: skip
     """The allowed ``[low, high]`` (None: no upper bound) of every count among the options, checked by
     :func:`check_options` before anything is built; a subclass extends it with its own counts."""
@@ -372,14 +380,13 @@ def evaluate(
         policy = as_recurrent(policy)
         result = tracking.test_episode(env, policy.step, carry=policy.carry)
         axes = tuple(result["axis_names"])
-        summary = tracking_error_sums(result["abs_error"][: result["steps"]], axes)
-        summary["episode_return"] = result["episode_return"]
+        summary = tracking_summary(result, axes)
         if run_dir is not None:
             real = result["real_path"]
             ref = result["ref_path"]
             ok = np.isfinite(real[:, 0])
             plot_tracking(ref[ok], real[ok], result["abs_error"][: result["steps"]], run_dir, axes)
-        return {"kind": "tracking", **summary}
+        return summary
     if is_racing_env(env):
         return race_evaluation(key, env, policy, episodes)
     if episodes_fn is None:
@@ -392,6 +399,15 @@ def evaluate(
     if "strict" in out:
         summary.update(precision_summary(out["strict"], PRECISION_THRESHOLDS))
     return {"kind": "episodes", **summary}
+
+
+def tracking_summary(result: Mapping[str, Any], axes: tuple[str, ...]) -> dict[str, Any]:
+    """:func:`evaluate`'s summary of a tracking env's test episode: ``result`` holds host values of
+    ``envs_mjx.tracking.rollout`` (``abs_error [N, len(axes)]``, ``steps``, ``episode_return``)."""
+    steps = int(result["steps"])
+    summary = tracking_error_sums(np.asarray(result["abs_error"])[:steps], axes)
+    summary["episode_return"] = float(result["episode_return"])
+    return {"kind": "tracking", **summary}
 
 
 def strict_env(env: Env, precision: bool) -> Env | None:
@@ -429,10 +445,17 @@ def race_evaluation(key: jax.Array, env: Env, policy: Callable, laps: int) -> di
     ``<road>/<outcome>`` counts (success, collision, out_of_track, stalled), ``<road>/overtakes`` (mean),
     ``<road>/speed_kmh``, ``<road>/rank`` and ``success_rate`` over every lap
     (:func:`envs_mjx.racecar.make_lap_test`)."""
-    from envs_mjx.racecar import lap_summary, make_lap_test
+    from envs_mjx.racecar import make_lap_test
 
     test = make_lap_test(env, laps)
-    roads = lap_summary(jax.device_get(jax.jit(lambda k: test(lambda e, s: policy(s.obs), k))(key)))
+    return race_summary(jax.device_get(jax.jit(lambda k: test(lambda e, s: policy(s.obs), k))(key)), laps)
+
+
+def race_summary(result: Mapping[str, Any], laps: int) -> dict[str, Any]:
+    """:func:`race_evaluation`'s summary of the host arrays of a lap test (``envs_mjx.racecar.make_lap_test``)."""
+    from envs_mjx.racecar import lap_summary
+
+    roads = lap_summary(result)
     flat: dict[str, Any] = {"kind": "racing", "laps_per_road": laps}
     flat["success_rate"] = sum(r["success"] for r in roads.values()) / (laps * len(roads))
     for road, row in roads.items():
@@ -475,6 +498,66 @@ def _compiled_episodes(future: Future | None) -> Callable[..., Any] | None:
         print(f"background compilation of the evaluation failed ({type(e).__name__}: {e}); compiling now", flush=True)
         return None
     return lambda k, state: compiled(k, state)
+
+
+def evaluation_during_training(spec: RunSpec) -> Callable[[jax.Array, Any], dict[str, Any]] | None:
+    """``(key, state) -> summary`` (:func:`evaluate`'s) of one seed's state for the evaluations during training
+    (``--evals``) of a tracking or racing env, whose final evaluation compiles its own program as it runs: one
+    program over ``(key, state)``, compiled at its first call and run by every such evaluation (a tracking env's
+    test episode from ``t = 0`` takes no key). None for other envs: theirs run the final evaluation's program
+    (:func:`compile_evaluation_async`)."""
+    env, policy_of = spec.env, spec.trainer.policy
+    if is_tracking_env(env):
+        from envs_mjx import tracking
+
+        def episode(k: jax.Array, s: Any) -> dict[str, jax.Array]:
+            policy = as_recurrent(policy_of(s))
+            return tracking.rollout(env, policy.step, carry=policy.carry)
+
+        axes, program = tuple(env.axis_names), jax.jit(episode)
+        return lambda k, s: tracking_summary(jax.device_get(program(k, s)), axes)
+    if is_racing_env(env):
+        from envs_mjx.racecar import make_lap_test
+
+        laps = spec.eval_episodes
+        test = make_lap_test(env, laps)
+        program = jax.jit(lambda k, s: test(lambda e, st: policy_of(s)(st.obs), k))
+        return lambda k, s: race_summary(jax.device_get(program(k, s)), laps)
+    return None
+
+
+class _RunEvaluations:
+    """A run's evaluation programs, each compiled once: the final evaluation's (``future`` of
+    :func:`compile_evaluation_async`, None for tracking and racing envs), which the evaluations during training
+    (``--evals``) run too, and for tracking and racing envs :func:`evaluation_during_training`'s."""
+
+    def __init__(self, spec: RunSpec, future: Future | None):
+        self._spec, self._future = spec, future
+        self._final: Callable[..., Any] | None = None
+        self._waited = False
+        self._during: Callable[[jax.Array, Any], dict[str, Any]] | None = None
+
+    def final(self) -> Callable[..., Any] | None:
+        """The final evaluation's compiled program (:func:`_compiled_episodes`, waited for at the first call)."""
+        if not self._waited:
+            self._final, self._waited = _compiled_episodes(self._future), True
+        return self._final
+
+    def during(self, key: jax.Array, state: Any) -> dict[str, Any]:
+        """One evaluation during training of one seed's ``state`` with ``key``: :func:`evaluate`'s summary."""
+        if self._during is None:
+            self._during = evaluation_during_training(self._spec) or self._episodes()
+        return self._during(key, state)
+
+    def _episodes(self) -> Callable[[jax.Array, Any], dict[str, Any]]:
+        """:func:`evaluate_state` with the final evaluation's program (one compiled here where that failed)."""
+        spec, compiled = self._spec, self.final()
+        if compiled is None:
+            strict = strict_env(spec.env, spec.precision)
+            fn = jax.jit(lambda k, s: final_episodes(k, spec.env, strict, spec.trainer.policy(s), spec.eval_episodes,
+                                                     spec.episode_length))  # fmt: skip
+            compiled = lambda k, state: fn(k, state)  # noqa: E731
+        return lambda k, s: evaluate_state(spec, k, s, None, compiled)
 
 
 def evaluation_key(seed: int) -> jax.Array:
@@ -692,7 +775,7 @@ def _run_locked(spec: RunSpec, run_dir: str) -> dict[str, Any]:
     state = program.init(seeds)
     seed_dirs = [os.path.join(run_dir, f"seed{k}") for k in seeds] if several else [run_dir]
     ckpt = Checkpointer(os.path.join(run_dir, "checkpoints"))
-    chunk, wall_before = 0, 0.0
+    chunk, wall_before, train_before = 0, 0.0, 0.0
     if resuming:
         restored = restore_run(ckpt, state, run_dir, spec.config)
         if restored is None:  # stopped before its first checkpoint: the saved config, from the start
@@ -700,6 +783,7 @@ def _run_locked(spec: RunSpec, run_dir: str) -> dict[str, Any]:
         else:
             state, record = restored.state, restored.record
             chunk, wall_before = int(record["chunk"]), float(record.get("wall_s", 0.0))
+            train_before = float(record.get("train_wall_s", wall_before))
             _say(f"resumed at chunk {chunk} ({chunk * trainer.env_steps_per_update} env steps)")
     steps_per = trainer.env_steps_per_update
     loggers = []
@@ -717,13 +801,40 @@ def _run_locked(spec: RunSpec, run_dir: str) -> dict[str, Any]:
     show = main and (use_progress_bar() if spec.progress is None else spec.progress)
     bar = _Progress(show, total_steps, chunk * steps_per)
     eval_keys = [evaluation_key(k) for k in seeds]
+    due = periodic.eval_chunks(spec.evals, trainer.num_updates)  # --evals: the chunks evaluated during training
     will_evaluate = stop_chunk >= trainer.num_updates and chunk < stop_chunk
+    will_evaluate = will_evaluate or any(chunk < c <= stop_chunk for c in due)
     eval_future = (
         compile_evaluation_async(spec, eval_keys[0], program.view(_local_view(state), 0)) if will_evaluate else None
     )
+    evaluations = _RunEvaluations(spec, eval_future)
+    keep = periodic.kept_chunk(chunk, trainer.num_updates) if resuming else None
+    eval_logs = [periodic.EvalLog(d, keep) for d in seed_dirs] if main and due else []
+    eval_spent = 0.0  # seconds of evaluations during training, kept off the training clock
+
+    def train_clock(t: float) -> float:
+        """The training clock at ``time.perf_counter()`` ``t``: training's seconds, evaluations apart."""
+        return train_before + t - t_loop - eval_spent
 
     def record(c: int, wall: float) -> dict[str, Any]:
-        return {"chunk": c, "env_steps": c * steps_per, "wall_s": wall, "config": _jsonable(spec.config)}
+        train_wall = train_clock(time.perf_counter())
+        return {"chunk": c, "env_steps": c * steps_per, "wall_s": wall, "train_wall_s": train_wall,
+                "config": _jsonable(spec.config)}  # fmt: skip
+
+    def evaluate_during(c: int, s: Any) -> None:
+        """Every seed's evaluation after chunk ``c`` (state ``s``), a row each in ``evals.csv`` (process 0)."""
+        nonlocal eval_spent
+        t = time.perf_counter()
+        clock, since_start = train_clock(t), None if startup_s is None else startup_s + t - t0 - eval_spent
+        local = _local_view(s)
+        for i, key in enumerate(eval_keys):
+            t_seed = time.perf_counter()
+            summary = evaluations.during(periodic.key_at(key, c, trainer.num_updates), program.view(local, i))
+            clocks = {"train_wall_s": clock, "process_s": since_start, "eval_s": time.perf_counter() - t_seed,
+                      "startup_s": startup_s, "first_chunk_s": compile_s}  # fmt: skip
+            for log in eval_logs[i : i + 1]:  # none off process 0
+                log.add(periodic.row_of(c, c * steps_per, clocks, summary))
+        eval_spent += time.perf_counter() - t
 
     compile_s, last_saved = None, chunk if resuming else -1
     t_loop = time.perf_counter()
@@ -754,13 +865,15 @@ def _run_locked(spec: RunSpec, run_dir: str) -> dict[str, Any]:
             for logger, m in zip(loggers, per_seed, strict=False):  # no loggers off process 0
                 logger.write(chunk * steps_per, {**m, "steps_per_s": sps})
             bar.update(chunk * steps_per, _progress_info(per_seed[0], sps))
+            if chunk in due and chunk < trainer.num_updates:  # before its checkpoint (the final one: below)
+                evaluate_during(chunk, state)
             if interrupt["signal"] and chunk < stop_chunk:
                 stop_chunk = chunk  # saved just below, then the loop ends
             if chunk % spec.checkpoint_every == 0 or chunk == stop_chunk:
                 ckpt.save(chunk, state, record(chunk, wall_before + time.perf_counter() - t0))
                 last_saved = chunk
     jax.block_until_ready(state)
-    train_s = time.perf_counter() - t_loop
+    train_s = time.perf_counter() - t_loop - eval_spent
     result: dict[str, Any] = {
         "run_dir": run_dir,
         "finished": chunk >= trainer.num_updates,
@@ -768,6 +881,7 @@ def _run_locked(spec: RunSpec, run_dir: str) -> dict[str, Any]:
         "compile_s": compile_s,
         "startup_s": startup_s,
         "train_s": train_s,
+        "periodic_eval_s": eval_spent,
     }
     for logger, d in zip(loggers, seed_dirs, strict=False):  # no loggers off process 0
         plot_training_curves(read_csv(logger.path), d)
@@ -781,10 +895,16 @@ def _run_locked(spec: RunSpec, run_dir: str) -> dict[str, Any]:
         return result
     t_eval = time.perf_counter()
     local_state = _local_view(state)
-    compiled = _compiled_episodes(eval_future)
+    compiled = evaluations.final()
     summaries = []
     for i, (key, d) in enumerate(zip(eval_keys, seed_dirs, strict=True)):
+        t_seed = time.perf_counter()
         summaries.append(evaluate_state(spec, key, program.view(local_state, i), d if main else None, compiled))
+        since_start = None if startup_s is None else startup_s + t_eval - t0 - eval_spent
+        clocks = {"train_wall_s": train_before + train_s, "process_s": since_start, "startup_s": startup_s,
+                  "eval_s": time.perf_counter() - t_seed, "first_chunk_s": compile_s}  # fmt: skip
+        for log in eval_logs[i : i + 1]:  # --evals: the final evaluation is the last row
+            log.add(periodic.row_of(chunk, chunk * steps_per, clocks, summaries[-1]))
     result["eval_s"] = time.perf_counter() - t_eval
     result["compile"] = compile_log().since(spec.compile_mark)
     result["wall_s"] = wall_before + time.perf_counter() - t0
