@@ -17,8 +17,18 @@ On the CPU every case also runs with XLA's default pipeline beside the setting t
 small MLP training step under both settings, its side cost.  The default-XLA MJX cases are slow,
 so they run only at the batches in ``--default-xla-batches``.
 
-Results: ``benchmarks/results/<device>-env_throughput.json`` and ``.md``.  To add an environment,
-append a ``Case`` to ``CASES`` (and a ``RawMJX`` case if it is simulated by MJX).
+``--impl jax warp`` times every MJX case on each physics backend (env setting ``impl``,
+``envs_mjx.backend``: MJX's JAX implementation, MuJoCo Warp) side by side; cases without MJX physics
+(``kinematic`` modes, ``racecar``) run on ``jax`` only.  Warp compiles its kernels at the first call, not in
+``compile()``, so each row also has ``first_call_s`` (the untimed warm-up call) and ``startup_s`` = compile
++ first call, the cold start a training run sees.  Warp keeps compiled kernels on disk (``~/.cache/warp``,
+``$WARP_CACHE_PATH``); ``--warp-kernel-cache fresh`` starts from an empty folder, as on a new machine.
+
+    python -m benchmarks.env_throughput --impl jax warp --cases "arm7 pd" "raw MJX arm7" --batches 64
+
+Results: ``benchmarks/results/<device>-env_throughput.json`` and ``.md`` (``…-env_throughput-jax-warp``
+with ``--impl``).  To add an environment, append a ``Case`` to ``CASES`` (and a ``RawMJX`` case if it is
+simulated by MJX).
 """
 
 from __future__ import annotations
@@ -32,6 +42,7 @@ import argparse  # noqa: E402
 import dataclasses  # noqa: E402
 import datetime  # noqa: E402
 import statistics  # noqa: E402
+import tempfile  # noqa: E402
 import time  # noqa: E402
 import warnings  # noqa: E402
 from collections.abc import Callable  # noqa: E402
@@ -45,7 +56,7 @@ from mujoco import mjx  # noqa: E402
 import envs_mjx  # noqa: E402
 from benchmarks import provenance  # noqa: E402
 from benchmarks.arguments import positive  # noqa: E402
-from envs_mjx import wrap_for_training  # noqa: E402
+from envs_mjx import backend, wrap_for_training  # noqa: E402
 
 warnings.filterwarnings("ignore", message="arm7 pd mode steps MJX")  # options are set per computation here
 
@@ -60,9 +71,10 @@ class Case:
     env: str
     overrides: tuple[tuple[str, Any], ...] = ()
     raw: str | None = None  # label of the RawMJX case to compare with
+    mjx: bool = True  # simulated by MJX (runs on every --impl), else on jax only
 
-    def build(self, lanes: int, steps: int) -> tuple[Callable, Any, dict[str, Any]]:
-        env = envs_mjx.make(self.env, **dict(self.overrides))
+    def build(self, lanes: int, steps: int, impl: str = "jax") -> tuple[Callable, Any, dict[str, Any]]:
+        env = envs_mjx.make(self.env, **dict(self.overrides), **({"impl": impl} if self.mjx else {}))
         train_env = wrap_for_training(env, num_envs=lanes)
 
         def chunk(state, key):
@@ -85,17 +97,19 @@ class RawMJX:
     env: str
     overrides: tuple[tuple[str, Any], ...] = ()
     raw: str | None = None
+    mjx: bool = True
 
-    def build(self, lanes: int, steps: int) -> tuple[Callable, Any, dict[str, Any]]:
-        env = envs_mjx.make(self.env, **dict(self.overrides))
+    def build(self, lanes: int, steps: int, impl: str = "jax") -> tuple[Callable, Any, dict[str, Any]]:
+        env = envs_mjx.make(self.env, **dict(self.overrides), impl=impl)
         model, substeps = env.mjx_model, int(env.config.n_substeps)
         lo, hi = env.mj_model.actuator_ctrlrange[:, 0], env.mj_model.actuator_ctrlrange[:, 1]
+        data0 = backend.make_data(env.mj_model, model)
 
         def init(key):
             kq, ku = jax.random.split(key)
             qpos = jax.random.uniform(kq, (model.nq,), minval=0.5 * lo, maxval=0.5 * hi)
             ctrl = jax.random.uniform(ku, (model.nu,), minval=0.5 * lo, maxval=0.5 * hi)
-            return mjx.make_data(model).replace(qpos=qpos, ctrl=ctrl)
+            return data0.replace(qpos=qpos, ctrl=ctrl)
 
         def control_step(data):
             return jax.lax.fori_loop(0, substeps, lambda _, d: mjx.step(model, d), data)
@@ -111,14 +125,14 @@ class RawMJX:
 
 CASES: list[Case | RawMJX] = [
     Case("arm7 pd", "arm7", (("mode", "pd"),), raw="raw MJX arm7"),
-    Case("arm7 kinematic", "arm7", (("mode", "kinematic"),), raw="raw MJX arm7"),
+    Case("arm7 kinematic", "arm7", (("mode", "kinematic"),), raw="raw MJX arm7", mjx=False),
     RawMJX("raw MJX arm7", "arm7", (("mode", "pd"),)),
     Case("scara", "scara", raw="raw MJX scara"),
     RawMJX("raw MJX scara", "scara"),
     Case("unicycle dynamic", "unicycle", (("mode", "dynamic"),), raw="raw MJX unicycle"),
-    Case("unicycle kinematic", "unicycle", (("mode", "kinematic"),), raw="raw MJX unicycle"),
+    Case("unicycle kinematic", "unicycle", (("mode", "kinematic"),), raw="raw MJX unicycle", mjx=False),
     RawMJX("raw MJX unicycle", "unicycle", (("mode", "dynamic"),)),
-    Case("racecar", "racecar"),
+    Case("racecar", "racecar", mjx=False),
 ]
 
 XLA_SETTINGS = {"no-algsimp": {"xla_disable_hlo_passes": "algsimp"}, "xla-default": {}}
@@ -130,13 +144,18 @@ def device_label() -> str:
 
 
 def measure(chunk: Callable, state: Any, lanes: int, steps: int, repeats: int, options: dict) -> dict[str, Any]:
-    """Compile time and median steps/s of ``chunk(state, key)`` (``lanes * steps`` control steps a call)."""
+    """Compile time and median steps/s of ``chunk(state, key)`` (``lanes * steps`` control steps a call).
+
+    ``compile_s``: tracing and XLA's compilation (``lower().compile()``); ``first_call_s``: the untimed
+    warm-up call (where MuJoCo Warp compiles or loads its kernels); ``startup_s``: the two together."""
     fn = jax.jit(chunk, compiler_options=options or None)
     key = jax.random.PRNGKey(1)
     t0 = time.perf_counter()
     compiled = fn.lower(state, key).compile()
     compile_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
     state = jax.block_until_ready(compiled(state, key))  # warm-up
+    first_call_s = time.perf_counter() - t0
     times = []
     for i in range(repeats):
         k = jax.random.fold_in(key, i)
@@ -144,7 +163,10 @@ def measure(chunk: Callable, state: Any, lanes: int, steps: int, repeats: int, o
         state = jax.block_until_ready(compiled(state, k))
         times.append(time.perf_counter() - t)
     med = statistics.median(times)
-    return {"compile_s": compile_s, "times_s": times, "median_s": med, "steps_per_s": lanes * steps / med}
+    return {
+        "compile_s": compile_s, "first_call_s": first_call_s, "startup_s": compile_s + first_call_s,
+        "times_s": times, "median_s": med, "steps_per_s": lanes * steps / med,
+    }  # fmt: skip
 
 
 def mlp_side_cost(options: dict, repeats: int) -> dict[str, Any]:
@@ -193,22 +215,38 @@ def markdown(meta: dict[str, Any], rows: list[dict[str, Any]], mlp: list[dict[st
             if meta.get("loadavg_start") is not None
             else ""
         ),
+    ]
+    impls = meta.get("impls", ["jax"])
+    if impls != ["jax"]:
+        lines += ["", impl_note(meta)]
+    by_impl = impls != ["jax"]
+    lines += [
         "",
-        "| case | XLA | lanes | control steps/s | physics steps/s | x raw MJX | compile s |",
-        "|---|---|---:|---:|---:|---:|---:|",
+        "| case |" + (" impl |" if by_impl else "") + " XLA | lanes | control steps/s | physics steps/s | x raw MJX "
+        "| compile s |" + (" first call s | start-up s |" if by_impl else ""),
+        "|---|" + ("---|" if by_impl else "") + "---|---:|---:|---:|---:|---:|" + ("---:|---:|" if by_impl else ""),
     ]
     for r in rows:
         phys = f"{r['physics_steps_per_s']:,.0f}" if r.get("physics_steps_per_s") else "—"
         ratio = f"{r['ratio_to_raw']:.2f}" if r.get("ratio_to_raw") else "—"
+        impl = f" {r.get('impl', 'jax')} |" if by_impl else ""
+        startup = f" {r['first_call_s']:.1f} | {r['startup_s']:.1f} |" if by_impl else ""
         lines.append(
-            f"| {r['case']} | {r['xla']} | {r['lanes']} | {r['steps_per_s']:,.0f} | {phys} | {ratio} | "
-            f"{r['compile_s']:.1f} |"
+            f"| {r['case']} |{impl} {r['xla']} | {r['lanes']} | {r['steps_per_s']:,.0f} | {phys} | {ratio} | "
+            f"{r['compile_s']:.1f} |{startup}"
         )
+    side = side_by_side(rows)
+    if side:
+        lines += ["", "Warp beside JAX (same case, lanes and XLA setting):", "", *side]
     speedups = []
     for r in rows:
         if r["xla"] != "xla-default":
             continue
-        fixed = [f for f in rows if f["case"] == r["case"] and f["lanes"] == r["lanes"] and f["xla"] == "no-algsimp"]
+        fixed = [
+            f for f in rows
+            if f["case"] == r["case"] and f["lanes"] == r["lanes"] and f["xla"] == "no-algsimp"
+            and f.get("impl", "jax") == r.get("impl", "jax")
+        ]  # fmt: skip
         if fixed:
             x = fixed[0]["steps_per_s"] / r["steps_per_s"]
             times = f"{x:,.0f}x" if x >= 10 else f"{x:.2f}x"
@@ -230,6 +268,38 @@ def markdown(meta: dict[str, Any], rows: list[dict[str, Any]], mlp: list[dict[st
     return "\n".join(lines) + "\n"
 
 
+def impl_note(meta: dict[str, Any]) -> str:
+    """The markdown sentence on the physics backends of a ``--impl`` run."""
+    cache = meta.get("warp_kernel_cache", "default")
+    fresh = cache == "fresh"
+    where = "an empty folder, kernels compiled anew" if fresh else "the machine's, kernels of earlier runs loaded"
+    return (
+        f"Physics backends (env setting `impl`): {', '.join(meta['impls'])}; warp-lang {meta.get('warp', '—')}. "
+        "`compile s`: tracing and XLA's compilation; `first call s`: the untimed warm-up call, where MuJoCo Warp "
+        f"compiles or loads its kernels (Warp's kernel cache: {where}); `start-up s`: the two together. Cases "
+        "without MJX physics run on `jax` only."
+    )
+
+
+def side_by_side(rows: list[dict[str, Any]]) -> list[str]:
+    """One line per case, lanes and XLA setting measured on both backends: start-up and steps/s."""
+    out = []
+    for w in rows:
+        if w.get("impl") != "warp":
+            continue
+        key = (w["case"], w["lanes"], w["xla"])
+        j = [r for r in rows if r.get("impl", "jax") == "jax" and (r["case"], r["lanes"], r["xla"]) == key]
+        if not j:
+            continue
+        j = j[0]
+        out.append(
+            f"- {w['case']} at {w['lanes']} lanes ({w['xla']}): start-up {j['startup_s']:.1f} s (jax) vs "
+            f"{w['startup_s']:.1f} s (warp); {j['steps_per_s']:,.0f} vs {w['steps_per_s']:,.0f} control steps/s "
+            f"(warp/jax {w['steps_per_s'] / j['steps_per_s']:.2f})"
+        )
+    return out
+
+
 def main(argv: list[str] | None = None) -> None:
     on_cpu = jax.default_backend() == "cpu"
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -242,9 +312,23 @@ def main(argv: list[str] | None = None) -> None:
         "--default-xla-batches", type=positive, nargs="*", default=[64] if on_cpu else [],
         help="batches also measured with XLA's default pipeline (CPU before/after)",
     )  # fmt: skip
+    parser.add_argument("--impl", nargs="+", choices=backend.IMPLS, default=["jax"],
+                        help="physics backends of the MJX cases, timed side by side (env setting impl)")  # fmt: skip
+    parser.add_argument("--warp-kernel-cache", choices=("default", "fresh"), default="default",
+                        help="MuJoCo Warp's kernel cache: the machine's (default) or an empty folder")  # fmt: skip
     parser.add_argument("--out", default=None, help="JSON path (markdown beside it); default benchmarks/results/")
     provenance.add_args(parser)
     args = parser.parse_args(argv)
+    impls = list(dict.fromkeys(args.impl))
+    if "warp" in impls:
+        try:
+            backend.check_impl("warp")
+        except backend.WarpMissingError as e:
+            raise SystemExit(str(e)) from None
+        if args.warp_kernel_cache == "fresh":
+            import warp
+
+            warp.config.kernel_cache_dir = tempfile.mkdtemp(prefix="env-throughput-warp-kernels-")
     seeds = "fixed in the code: states from PRNGKey(0), actions from PRNGKey(1), every case"
     prov = provenance.record("benchmarks.env_throughput", argv, seeds=seeds, allow_dirty=args.allow_dirty)
 
@@ -263,8 +347,14 @@ def main(argv: list[str] | None = None) -> None:
         "repeats": args.repeats,
         "xla_flags": os.environ.get("XLA_FLAGS", ""),
         "loadavg_start": os.getloadavg()[0] if on_cpu else None,
+        "impls": impls,
     }
-    out = args.out or os.path.join(RESULTS, f"{meta['device_label']}-env_throughput.json")
+    if "warp" in impls:
+        import warp
+
+        meta.update(warp=warp.__version__, warp_kernel_cache=args.warp_kernel_cache)
+    suffix = "" if impls == ["jax"] else "-" + "-".join(impls)
+    out = args.out or os.path.join(RESULTS, f"{meta['device_label']}-env_throughput{suffix}.json")
     os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
     rows: list[dict[str, Any]] = []
     mlp: list[dict[str, Any]] = []
@@ -279,27 +369,35 @@ def main(argv: list[str] | None = None) -> None:
     for lanes in args.batches:
         settings = ["no-algsimp"] + (["xla-default"] if on_cpu and lanes in args.default_xla_batches else [])
         for xla_name in settings:
-            for label in order:
-                case = cases[label]
-                # XLA:CPU's default pipeline runs MJX thousands of times slower: time one short call
-                steps, repeats = (1, 1) if xla_name == "xla-default" else (args.steps, args.repeats)
-                chunk, state, extra = case.build(lanes, steps)
-                r = measure(chunk, state, lanes, steps, repeats, XLA_SETTINGS[xla_name] if on_cpu else {})
-                row = {"case": label, "xla": xla_name if on_cpu else "default", "lanes": lanes, "steps": steps, **extra}
-                row.update(r)
-                if isinstance(case, RawMJX) and extra["substeps"]:
-                    row["physics_steps_per_s"] = r["steps_per_s"] * extra["substeps"]
-                base = [b for b in rows if b["case"] == case.raw and b["lanes"] == lanes and b["xla"] == row["xla"]]
-                if base:
-                    row["ratio_to_raw"] = r["steps_per_s"] / base[0]["steps_per_s"]
-                rows.append(row)
-                ratio = f"  x{row['ratio_to_raw']:.2f} raw" if "ratio_to_raw" in row else ""
-                print(
-                    f"{label:<16} {row['xla']:<11} lanes {lanes:>6}: {r['steps_per_s']:>12,.0f} steps/s "
-                    f"(compile {r['compile_s']:.1f} s){ratio}",
-                    flush=True,
-                )
-                save()
+            # the default pipeline is the before/after of the CPU fix for MJX's JAX implementation only
+            for impl in impls if xla_name == "no-algsimp" else ["jax"]:
+                for label in order:
+                    case = cases[label]
+                    if impl != "jax" and not case.mjx:
+                        continue
+                    # XLA:CPU's default pipeline runs MJX thousands of times slower: time one short call
+                    steps, repeats = (1, 1) if xla_name == "xla-default" else (args.steps, args.repeats)
+                    chunk, state, extra = case.build(lanes, steps, impl)
+                    r = measure(chunk, state, lanes, steps, repeats, XLA_SETTINGS[xla_name] if on_cpu else {})
+                    row = {"case": label, "impl": impl, "xla": xla_name if on_cpu else "default", "lanes": lanes,
+                           "steps": steps, **extra}  # fmt: skip
+                    row.update(r)
+                    if isinstance(case, RawMJX) and extra["substeps"]:
+                        row["physics_steps_per_s"] = r["steps_per_s"] * extra["substeps"]
+                    base = [
+                        b for b in rows
+                        if (b["case"], b["lanes"], b["xla"], b["impl"]) == (case.raw, lanes, row["xla"], impl)
+                    ]  # fmt: skip
+                    if base:
+                        row["ratio_to_raw"] = r["steps_per_s"] / base[0]["steps_per_s"]
+                    rows.append(row)
+                    ratio = f"  x{row['ratio_to_raw']:.2f} raw" if "ratio_to_raw" in row else ""
+                    print(
+                        f"{label:<16} {impl:<4} {row['xla']:<11} lanes {lanes:>6}: {r['steps_per_s']:>12,.0f} steps/s "
+                        f"(compile {r['compile_s']:.1f} s, first call {r['first_call_s']:.1f} s){ratio}",
+                        flush=True,
+                    )
+                    save()
     if on_cpu:
         for xla_name in XLA_SETTINGS:
             m = mlp_side_cost(XLA_SETTINGS[xla_name], args.repeats)

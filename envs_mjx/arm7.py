@@ -50,7 +50,7 @@ from brax.envs.base import State
 from flax import struct
 from mujoco import mjx
 
-from envs_mjx import ik, xla
+from envs_mjx import backend, ik, xla
 from envs_mjx.base import RobotEnv, sanitize_action
 from envs_mjx.config import ConfigError, check_choice, check_range, check_vector
 
@@ -102,6 +102,9 @@ class Arm7Config:
         middle fraction of each joint's range: the arm's usual working postures, where a straight
         reach to any other sampled point needs no reconfiguration (with the full range a greedy
         straight-line controller fails ~3 % of episodes on joint 1's limit behind the base). (0.5)
+      impl: MJX backend of ``pd`` mode, ``"jax"`` (MJX's JAX implementation) or ``"warp"`` (MuJoCo Warp,
+        ``pip install -e ".[warp]"``; when it pays: ``envs_mjx.backend``). ``kinematic`` mode steps no
+        physics and takes only ``"jax"``. ("jax")
     """
 
     mode: str = "pd"
@@ -124,6 +127,7 @@ class Arm7Config:
     region_floor: float = 0.05
     sample_tries: int = 16
     sample_fraction: float = 0.5
+    impl: str = "jax"
 
     def validate(self) -> None:
         """Raise ``ConfigError`` naming the first invalid field and what is allowed."""
@@ -147,6 +151,7 @@ class Arm7Config:
         check_range("region_floor", self.region_floor, -0.5, 0.8)
         _check_int("sample_tries", self.sample_tries, 1)
         check_range("sample_fraction", self.sample_fraction, 0.0, 1.0, lo_open=True)
+        backend.check_impl(self.impl, self.mode, ("pd",))
 
 
 def _check_int(field: str, value: Any, lo: int) -> None:
@@ -175,7 +180,7 @@ class Arm7(RobotEnv):
         super().__init__(config, **overrides)
         cfg = self.config
         self.mj_model = mujoco.MjModel.from_xml_path(str(ASSET))
-        self.mjx_model = mjx.put_model(self.mj_model)
+        self.mjx_model = backend.put_model(self.mj_model, cfg.impl)
         self.chain = ik.chain_from_model(self.mj_model, "ee")
         self.ee_site = mujoco.mj_name2id(self.mj_model, mujoco.mjtObj.mjOBJ_SITE, "ee")
         self.dt = float(self.mj_model.opt.timestep) * cfg.n_substeps
@@ -184,8 +189,8 @@ class Arm7(RobotEnv):
         # home pose: elbow and wrist bent, end-effector in front of the robot, well inside the region
         self.home_qpos = np.array([0.0, 0.5, 0.0, -1.2, 0.0, 0.9, 0.0], np.float32)
         self.home_ee = np.asarray(self.ee_position(self.home_qpos))
-        self._data0 = mjx.make_data(self.mjx_model) if cfg.mode == "pd" else None
-        if cfg.mode == "pd" and jax.default_backend() == "cpu" and not xla.flag_active():
+        self._data0 = backend.make_data(self.mj_model, self.mjx_model) if cfg.mode == "pd" else None
+        if cfg.mode == "pd" and cfg.impl == "jax" and jax.default_backend() == "cpu" and not xla.flag_active():
             warnings.warn(
                 "arm7 pd mode steps MJX, which XLA:CPU runs ~100x slower unless its 'algsimp' pass is "
                 "disabled: import envs_mjx before the first JAX computation, or jit with envs_mjx.xla.jit "

@@ -51,6 +51,7 @@ import jax.numpy as jnp
 import numpy as np
 from brax.envs.base import Env, State, Wrapper
 
+from envs_mjx import backend
 from envs_mjx.config import apply_overrides
 
 __all__ = [
@@ -266,7 +267,7 @@ class ActionRepeatWrapper(_ParamWrapper):
         def one(carry: tuple[State, jax.Array], _: None) -> tuple[tuple[State, jax.Array], None]:
             s, total = carry
             ended = s.done > 0
-            ns = jax.tree.map(lambda old, new: jnp.where(ended, old, new), s, self.env.step(s, action))
+            ns = backend.select(ended, s, self.env.step(s, action))
             return (ns, total + jnp.where(ended, 0.0, ns.reward)), None
 
         zero = jnp.zeros_like(state.reward)
@@ -349,7 +350,7 @@ class AutoResetWrapper(_ParamWrapper):
                 info[k] = nstate.info[k]
         info["final_obs"] = nstate.obs
         info["reset_key"] = key
-        physics = jax.tree.map(pick, physics_of(fresh), physics_of(nstate))
+        physics = backend.select(done, physics_of(fresh), physics_of(nstate))  # a Warp data's shared fields kept
         return with_physics(nstate, physics).replace(obs=pick(fresh.obs, nstate.obs), info=info)
 
 
@@ -367,6 +368,8 @@ def map_lanes(fn: Callable[..., Any], lane_group: int, *args: Any) -> Any:
         return jax.vmap(fn)(*args)
     if lanes % lane_group:
         raise ValueError(f"lane_group={lane_group} must divide the lanes per device ({lanes})")
+    if backend.has_shared(args):
+        raise ValueError(f"lane_group={lane_group} is not supported with MuJoCo Warp physics (impl='warp'); use 0")
     groups = jax.tree.map(lambda x: x.reshape((lanes // lane_group, lane_group) + x.shape[1:]), args)
     out = jax.lax.map(lambda a: jax.vmap(fn)(*a), groups)
     return jax.tree.map(lambda x: x.reshape((lanes,) + x.shape[2:]), out)
@@ -477,9 +480,10 @@ class PoolResetWrapper(_ParamWrapper):
         nstate = map_lanes(self.env.step, self.lane_group, state, action)
         lanes = nstate.obs.shape[0]
         g, r = self.group_sizes(lanes)
-        grouped = jax.tree.map(lambda x: x.reshape((lanes // g, g) + x.shape[1:]), nstate)
+        # backend.lane_map: a Warp data's fields shared by all lanes have no lane axis to split
+        grouped = backend.lane_map(lambda x: x.reshape((lanes // g, g) + x.shape[1:]), nstate)
         out = jax.vmap(lambda s: self._group_step(s, r))(grouped)
-        return jax.tree.map(lambda x: x.reshape((lanes,) + x.shape[2:]), out)
+        return backend.lane_map(lambda x: x.reshape((lanes,) + x.shape[2:]), out)
 
     def _group_step(self, nstate: State, r: int) -> State:
         """One group's redraw and restart; every leaf is ``[G, ...]``."""
@@ -494,7 +498,7 @@ class PoolResetWrapper(_ParamWrapper):
         params = info.get("params")
         lane_params = None if params is None else jax.tree.map(lambda x: x[idx], params)
         drawn = self._entry(self._draw(pairs[:, 1], lane_params, True))
-        pool = jax.tree.map(lambda old, new: old.at[idx].set(new), info["reset_pool"], drawn)
+        pool = backend.lane_map(lambda old, new: old.at[idx].set(new), info["reset_pool"], drawn)
         stale = stale.at[idx].set(False)
         age = (info["pool_age"] + 1).at[idx].set(0)
 
@@ -511,7 +515,7 @@ class PoolResetWrapper(_ParamWrapper):
             pool_age=age,
             pool_reused=(done & stale).astype(jnp.float32),
         )
-        physics = jax.tree.map(pick, pool["pipeline_state"], physics_of(nstate))
+        physics = backend.select(done, pool["pipeline_state"], physics_of(nstate))
         return with_physics(nstate, physics).replace(obs=pick(pool["obs"], nstate.obs), info=new_info)
 
 

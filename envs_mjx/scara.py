@@ -48,7 +48,7 @@ import jax.numpy as jnp
 import mujoco
 from mujoco import mjx
 
-from envs_mjx import tracking
+from envs_mjx import backend, tracking
 from envs_mjx.base import State, sanitize_action
 from envs_mjx.config import ConfigError, check_choice, check_range, check_vector
 from envs_mjx.trajectories import JointReference, joint_sinusoids
@@ -110,6 +110,9 @@ class ScaraConfig:
     """Early termination counts steps whose position error exceeds this (m)."""
     et_limit: float = 20.0
     """Episode terminates when the counter exceeds this."""
+    impl: str = "jax"
+    """MJX backend: 'jax' (MJX's JAX implementation) or 'warp' (MuJoCo Warp, pip install -e ".[warp]";
+    :mod:`envs_mjx.backend`)."""
 
     def validate(self) -> None:
         check_choice("observation", self.observation, OBSERVATIONS)
@@ -139,6 +142,7 @@ class ScaraConfig:
         check_range("reward_coef", self.reward_coef, 0.0, lo_open=True)
         check_range("obs_error_scale", self.obs_error_scale, 0.0, lo_open=True)
         tracking.check_episode(self)
+        backend.check_impl(self.impl)
 
     def resolved(self) -> ScaraConfig:
         """This config with ``duration`` and ``max_steps`` filled in (and checked to agree)."""

@@ -35,8 +35,8 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
-from mujoco import mjx
 
+from envs_mjx import backend
 from envs_mjx.base import RobotEnv, State
 from envs_mjx.config import ConfigError, check_range, check_vector
 
@@ -64,7 +64,8 @@ class TrackingEnv(RobotEnv):
     """Shared part of the trajectory-tracking environments (``scara``, ``unicycle``).
 
     Subclasses set ``build_model`` (``config -> mujoco.MjModel``, a staticmethod); their config
-    has ``dt``, ``duration``, ``max_steps``, ``n_substeps``, ``action_scale`` (the scale vector C),
+    has ``impl`` (the MJX backend, :mod:`envs_mjx.backend`), ``dt``, ``duration``, ``max_steps``,
+    ``n_substeps``, ``action_scale`` (the scale vector C),
     ``rsi`` (default RSI window), ``et_threshold``, ``et_limit`` and a ``resolved()`` that fills in
     the derived lengths (and any default C).
 
@@ -79,8 +80,8 @@ class TrackingEnv(RobotEnv):
         super().__init__(config, **overrides)
         self.config = self.config.resolved()
         self.mj_model = self.build_model(self.config)
-        self.mjx_model = mjx.put_model(self.mj_model)
-        self._data0 = mjx.make_data(self.mjx_model)
+        self.mjx_model = backend.put_model(self.mj_model, self.config.impl)
+        self._data0 = backend.make_data(self.mj_model, self.mjx_model)
         self._scale = jnp.asarray(self.config.action_scale, jnp.float32)
 
     @property

@@ -67,7 +67,7 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
-from envs_mjx import tracking
+from envs_mjx import backend, tracking
 from envs_mjx.base import State, sanitize_action
 from envs_mjx.config import ConfigError, check_choice, check_range, check_vector
 from envs_mjx.trajectories import PLANAR_TRAJECTORIES, PlanarReference, default_duration, planar_reference
@@ -146,6 +146,9 @@ class UnicycleConfig:
     """Early termination counts steps whose position error exceeds this (m)."""
     et_limit: float = 20.0
     """Episode terminates when the counter exceeds this."""
+    impl: str = "jax"
+    """MJX backend of 'dynamic': 'jax' (MJX's JAX implementation) or 'warp' (MuJoCo Warp, pip install -e
+    ".[warp]"; :mod:`envs_mjx.backend`). 'kinematic' steps no physics and takes only 'jax'."""
 
     def validate(self) -> None:
         check_choice("mode", self.mode, MODES)
@@ -167,6 +170,7 @@ class UnicycleConfig:
             if min(self.obs_pos_scale) <= 0.0:
                 raise ConfigError(f"obs_pos_scale={self.obs_pos_scale!r} must be positive in every element")
         tracking.check_episode(self)
+        backend.check_impl(self.impl, self.mode, ("dynamic",))
 
     def resolved(self) -> UnicycleConfig:
         """This config with ``duration``, ``max_steps`` and ``action_scale`` filled in."""
