@@ -72,7 +72,7 @@ def transitions(key: jax.Array, n: int) -> Transition:
         action=jax.random.uniform(k[1], (n, 3), minval=-1, maxval=1),
         reward=-jnp.ones((n,)),
         next_obs=jax.random.normal(k[2], (n, 9)),
-        terminated=jnp.zeros((n,)),
+        termination=jnp.zeros((n,)),
     )
 
 

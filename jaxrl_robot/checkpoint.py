@@ -60,6 +60,11 @@ CHECKSUMS = "checksums.json"
 MAX_LISTED = 3
 """Differences named in a :class:`CheckpointMismatchError` (the rest are counted)."""
 
+RENAMED = {"termination": "terminated"}
+"""Names of state fields that earlier versions saved under another name (now -> then); a checkpoint
+holding the old name restores into a state with the new one. ``terminated``: the termination of a
+replay memory's rows before :class:`jaxrl_robot.types.Transition` became the one transition type."""
+
 
 class CheckpointError(Exception):
     """A checkpoint cannot be written or read; the message is one line naming the folder or step."""
@@ -204,7 +209,7 @@ class Checkpointer:
         Zero-size leaves of ``target`` are not saved and so not compared.
         """
         saved = {_names(p): m for p, m in jax.tree_util.tree_flatten_with_path(self._saved_metadata(step))[0]}
-        now = {_names(p): x for p, x in jax.tree_util.tree_flatten_with_path(target)[0]}
+        now = {_as_saved(_names(p), saved): x for p, x in jax.tree_util.tree_flatten_with_path(target)[0]}
         out = []
         for path, x in now.items():
             m, name = saved.get(path), ".".join(path) or "state"
@@ -254,6 +259,7 @@ class Checkpointer:
             if differences:
                 raise CheckpointMismatchError(step, differences)
             abstract = jax.tree.map(lambda x: ocp.utils.to_shape_dtype_struct(x) if np.size(x) else None, target)
+            abstract = _under_saved_names(abstract, self._saved_metadata(step))
         else:  # onto this process's first device: the saved shardings may name devices this machine lacks
             device = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
             abstract = jax.tree.map(lambda m: jax.ShapeDtypeStruct(m.shape, m.dtype, sharding=device),
@@ -268,7 +274,8 @@ class Checkpointer:
         if target is not None:
             saved = {_names(p): v for p, v in jax.tree_util.tree_flatten_with_path(state)[0]}
             paths, treedef = jax.tree_util.tree_flatten_with_path(target)
-            state = jax.tree.unflatten(treedef, [saved[_names(p)] if np.size(t) else t for p, t in paths])
+            state = jax.tree.unflatten(treedef, [saved[_as_saved(_names(p), saved)] if np.size(t) else t
+                                                 for p, t in paths])  # fmt: skip
         return state, dict(out["record"] or {})
 
     def read_record(self, step: int) -> dict[str, Any]:
@@ -419,6 +426,26 @@ class DirectoryLock:
 def _names(path: tuple) -> tuple:
     """A key path as plain names, so a dataclass field and the dict key it was saved under match."""
     return tuple(str(getattr(k, "name", getattr(k, "key", getattr(k, "idx", k)))) for k in path)
+
+
+def _as_saved(path: tuple, saved: Any) -> tuple:
+    """``path`` (plain names) as a checkpoint holds it (``saved``: its paths, a set or a dict's keys):
+    itself, or with the :data:`RENAMED` fields under their old names where only those are saved."""
+    if path in saved:
+        return path
+    old = tuple(RENAMED.get(name, name) for name in path)
+    return old if old in saved else path
+
+
+def _under_saved_names(abstract: Any, metadata: Any) -> Any:
+    """``abstract`` (the target's tree) as nested dicts of the saved tree ``metadata`` where a field is
+    saved under its old name (:data:`RENAMED`), so that orbax finds every array; else unchanged."""
+    saved = {_names(p) for p, _ in jax.tree_util.tree_flatten_with_path(metadata)[0]}
+    flat = [(_names(p), x) for p, x in jax.tree_util.tree_flatten_with_path(abstract)[0]]
+    if all(_as_saved(path, saved) == path for path, _ in flat):
+        return abstract
+    leaves = {_as_saved(path, saved): x for path, x in flat}
+    return jax.tree_util.tree_map_with_path(lambda p, _: leaves[_names(p)], metadata)
 
 
 def _shape_dtype(x: Any) -> tuple[tuple[int, ...], str]:

@@ -1,4 +1,4 @@
-"""Shared data types: transitions, the trainer interface, running statistics.
+"""Shared data types: the one transition type, the trainer interface, running statistics.
 
 ``Trainer`` is the contract between an algorithm (``jaxrl_robot.agents.<algo>``) and the
 command-line driver (``train/common.py``): the algorithm supplies pure functions, the
@@ -44,29 +44,34 @@ def as_recurrent(policy: Policy | RecurrentPolicy) -> RecurrentPolicy:
 
 
 class Transition(NamedTuple):
-    """One environment step per lane; leaves are ``[...]`` (``[T, B]`` after a rollout).
+    """One environment step per lane — what a rollout produces and what a replay memory stores; leaves
+    are ``[...]`` (``[T, B]`` after a rollout, ``[capacity]`` in a replay memory).
 
     Attributes:
       obs: ``[..., D]`` observation ``s_t`` the action was chosen from.
-      action: ``[..., A]`` action ``a_t`` as sampled (before the env clips it to [-1, 1]).
+      action: ``[..., A]`` action ``a_t`` as sampled (before the env clips it to [-1, 1]; an
+        off-policy agent stores it in [-1, 1], before the env's scale C).
       reward: ``[...]`` reward ``r_t``.
-      termination: ``[...]`` 1.0 where ``s'_t`` is terminal (success or failure): no bootstrap.
-      truncation: ``[...]`` 1.0 where the time limit cut the episode at ``t``: bootstrap from ``V(s'_t)``.
       next_obs: ``[..., D]`` the true successor ``s'_t`` (the final observation at an episode end,
         not the next episode's first observation).
+      termination: ``[...]`` 1.0 where ``s'_t`` is terminal (success or failure): no bootstrap.
+      truncation: ``[...]`` 1.0 where the time limit cut the episode at ``t``: bootstrap from ``V(s'_t)``.
       done: ``[...]`` 1.0 where the episode ended at ``t`` (termination or truncation).
       metrics: env metrics of the step (final values where ``done``), plus ``episode_return``
         and ``episode_length`` (totals of the finished episode where ``done``).
+
+    The last three default to ``()`` (no arrays): a replay memory's rows (``jaxrl_robot.replay``) hold
+    only what the off-policy critic target needs, ``(s, a, r, s', d)`` with ``d`` the termination.
     """
 
     obs: jax.Array
     action: jax.Array
     reward: jax.Array
-    termination: jax.Array
-    truncation: jax.Array
     next_obs: jax.Array
-    done: jax.Array
-    metrics: dict[str, jax.Array]
+    termination: jax.Array
+    truncation: Any = ()
+    done: Any = ()
+    metrics: Any = ()
 
 
 @struct.dataclass

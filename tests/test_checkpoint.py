@@ -166,6 +166,36 @@ def test_a_state_that_no_longer_fits_names_the_paths_that_differ(saved):
     assert ckpt.all_steps() == [1, 2, 3]  # a mismatch is not damage: nothing is set aside
 
 
+def test_replay_rows_saved_with_terminated_restore_into_the_one_transition_type(tmp_path):
+    """Earlier versions stored a replay's termination as ``terminated`` (``checkpoint.RENAMED``): such a
+    checkpoint restores into a state holding :class:`jaxrl_robot.types.Transition` rows (``termination``),
+    every value in its place; a shape that differs is still named, by its old path."""
+    from typing import NamedTuple
+
+    from jaxrl_robot.types import Transition
+
+    class OldRows(NamedTuple):  # the replay rows of earlier versions
+        obs: jax.Array
+        action: jax.Array
+        reward: jax.Array
+        next_obs: jax.Array
+        terminated: jax.Array
+
+    old = OldRows(jnp.ones((4, 2)), jnp.full((4, 1), 0.5), jnp.arange(4.0), jnp.full((4, 2), 2.0),
+                  jnp.array([0.0, 1.0, 0.0, 1.0]))  # fmt: skip
+    Checkpointer(str(tmp_path)).save(1, {"replay": {"data": old, "size": jnp.int32(4)}, "key": jnp.arange(2)}, {})
+    rows = Transition(*(jnp.zeros_like(x) for x in old))
+    target = {"replay": {"data": rows, "size": jnp.int32(0)}, "key": jnp.zeros(2, jnp.int32)}
+    state, _ = Checkpointer(str(tmp_path)).restore(1, target)
+    assert isinstance(state["replay"]["data"], Transition)
+    for name, value in zip(Transition._fields, old, strict=False):
+        np.testing.assert_array_equal(getattr(state["replay"]["data"], name), value)
+    assert int(state["replay"]["size"]) == 4 and state["replay"]["data"].truncation == ()
+    target["replay"]["data"] = rows._replace(termination=jnp.zeros(5))
+    with pytest.raises(CheckpointMismatchError, match=r"replay\.data\.terminated has shape \(4,\) saved, \(5,\) now"):
+        Checkpointer(str(tmp_path)).restore(1, target)
+
+
 @pytest.mark.parametrize("where", ["record", "checksums"])
 def test_disk_full_while_saving_removes_the_partial_checkpoint_and_keeps_the_others(saved, monkeypatch, caplog, where):
     """ENOSPC raised inside the save: by orbax writing the record item (the state's writer threads still

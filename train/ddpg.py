@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import dataclasses
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Annotated, Any, ClassVar
 
@@ -47,15 +48,18 @@ import tyro
 from jax.sharding import Mesh
 
 from jaxrl_robot.agents.ddpg import DDPGConfig
+from jaxrl_robot.agents.ddpg import make_trainer as make_ddpg_trainer
+from jaxrl_robot.agents.off_policy import OffPolicyConfig
+from jaxrl_robot.types import Trainer
 from train import common
 from train.presets import ddpg_env_overrides, ddpg_preset
 
-__all__ = ["CLI", "Args", "OffPolicyCLI", "OffPolicyOptions", "build", "distributed_flag", "main", "parse"]
+__all__ = ["CLI", "Args", "OffPolicyCLI", "OffPolicyOptions", "build", "chunked", "distributed_flag", "main", "parse"]
 
 
 @dataclass
 class OffPolicyOptions(common.RunOptions):
-    """The run options of the DDPG-family command lines (``train.ddpg``, ``train.td3``)."""
+    """The run options of the off-policy command lines (``train.ddpg``, ``train.td3``, ``train.sac``)."""
 
     chunks: int = 0
     """Reporting chunks per run, 0 or more (0: one per epoch for the 'episodes' schedule, 50 for 'steps')."""
@@ -84,13 +88,14 @@ def env_settings(args: OffPolicyOptions) -> dict[str, Any]:
     return {**ddpg_env_overrides(args.preset, args.env, method_of(args), user.get("trajectory")), **user}
 
 
-def algo_config(args: OffPolicyOptions) -> DDPGConfig | None:
-    """The :class:`DDPGConfig` of ``args`` (``args.ddpg`` or ``args.td3``; None for bare options)."""
-    return getattr(args, "ddpg", None) or getattr(args, "td3", None)
+def algo_config(args: OffPolicyOptions) -> OffPolicyConfig | None:
+    """The config of ``args`` (``args.ddpg``, ``args.td3`` or ``args.sac``; None for bare options)."""
+    return getattr(args, "ddpg", None) or getattr(args, "td3", None) or getattr(args, "sac", None)
 
 
 def method_of(args: OffPolicyOptions) -> str:
-    """``ddpg``, ``distributed``, ``td3`` or ``distributed-td3``: the algorithm ``args`` configure."""
+    """``ddpg``, ``distributed``, ``td3`` or ``distributed-td3``: the algorithm ``args`` configure (SAC's
+    presets are DDPG's)."""
     name = "td3" if getattr(args, "td3", None) is not None else "ddpg"
     config = algo_config(args)
     if config is not None and config.distributed:
@@ -124,17 +129,25 @@ class OffPolicyCLI(common.AlgorithmCLI):
         return common.AlgorithmCLI.parse(ahead, argv)
 
 
-def make_trainer(args: OffPolicyOptions, env: Any, cfg: DDPGConfig, mesh: Mesh):
-    """The DDPG trainer over the lane mesh: ``--chunks`` chunks, or one per epoch ('episodes') or 50 ('steps')."""
-    from jaxrl_robot.agents.ddpg import make_trainer as make_ddpg_trainer
+def chunked(make_algo_trainer: Callable[..., Trainer]) -> Callable[..., tuple[Trainer, int]]:
+    """The CLI's ``make_trainer(args, env, cfg, mesh) -> (trainer, iterations per chunk)`` of an off-policy
+    library trainer (``jaxrl_robot.agents.ddpg.make_trainer``, ``…sac.make_trainer``) over the lane mesh:
+    ``--chunks`` chunks, or one per epoch ('episodes') or 50 ('steps')."""
 
-    if args.chunks > 0:
-        per_chunk = common.iterations_per_chunk(cfg.iterations, args.chunks)
-    elif cfg.schedule == "episodes":
-        per_chunk = cfg.cycles_per_epoch
-    else:
-        per_chunk = common.iterations_per_chunk(cfg.iterations, 50)
-    return make_ddpg_trainer(cfg, env, mesh=mesh, iterations_per_update=per_chunk), per_chunk
+    def make_trainer(args: OffPolicyOptions, env: Any, cfg: OffPolicyConfig, mesh: Mesh) -> tuple[Trainer, int]:
+        if args.chunks > 0:
+            per_chunk = common.iterations_per_chunk(cfg.iterations, args.chunks)
+        elif cfg.schedule == "episodes":
+            per_chunk = cfg.cycles_per_epoch
+        else:
+            per_chunk = common.iterations_per_chunk(cfg.iterations, 50)
+        return make_algo_trainer(cfg, env, mesh=mesh, iterations_per_update=per_chunk), per_chunk
+
+    return make_trainer
+
+
+make_trainer = chunked(make_ddpg_trainer)
+"""The DDPG (and TD3) trainer of the CLI: ``(args, env, cfg, mesh) -> (trainer, iterations per chunk)``."""
 
 
 CLI = OffPolicyCLI(

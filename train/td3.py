@@ -1,6 +1,6 @@
 """Train TD3 (thesis §6.2, Eq. 6.2–6.3): ``python -m train.td3 --env unicycle``.
 
-TD3 is DDPG's trainer (``jaxrl_robot.agents.ddpg``) with three of its options set: two critics
+TD3 (``jaxrl_robot.agents.td3``) is DDPG's trainer with three of its options set: two critics
 regressed on the clipped double-Q target ``y = r + γ (1 − d) min(Q1'(s', a'), Q2'(s', a'))``
 (Eq. 6.2), the target action smoothed as ``a' = clip(μ'(s') + clip(ξ, −0.5, 0.5), −1, 1)`` with
 ``ξ ~ N(0, 0.2²)`` (Eq. 6.3), and the actor (which maximises Q1) and all target networks updated
@@ -27,12 +27,10 @@ from typing import Annotated, Any
 import tyro
 
 from jaxrl_robot.agents.ddpg import DDPGConfig
+from jaxrl_robot.agents.td3 import TD3_SETTINGS, td3_config
 from train import ddpg
 
 __all__ = ["CLI", "TD3_SETTINGS", "Args", "build", "main", "parse", "preset"]
-
-TD3_SETTINGS: dict[str, Any] = dict(twin_critics=True, target_noise=0.2, target_noise_clip=0.5, policy_delay=2)
-"""The DDPGConfig fields that make TD3 (Eq. 6.2, Eq. 6.3, delayed actor and targets)."""
 
 
 @dataclass
@@ -42,15 +40,14 @@ class Args(ddpg.OffPolicyOptions):
     on the preset's distributed variant (thesis: 4 + 4 workers, 4 x 32 transitions per update,
     memory 200 000)."""
 
-    td3: Annotated[DDPGConfig, tyro.conf.OmitArgPrefixes] = field(
-        default_factory=lambda: DDPGConfig(**TD3_SETTINGS)
-    )
+    td3: Annotated[DDPGConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=td3_config)
     """TD3 hyper-parameters (defaults: DDPG's preset for the env with the TD3 settings)."""
 
 
 def preset(args: ddpg.OffPolicyOptions, env: Any, distributed: bool = False) -> DDPGConfig:
-    """DDPG's preset for ``env`` (:func:`train.ddpg.preset`, distributed or not) with :data:`TD3_SETTINGS`."""
-    return ddpg.preset(args, env, distributed=distributed).replace(**TD3_SETTINGS)
+    """DDPG's preset for ``env`` (:func:`train.ddpg.preset`, distributed or not) with the TD3 settings
+    (``jaxrl_robot.agents.td3.TD3_SETTINGS``)."""
+    return td3_config(ddpg.preset(args, env, distributed=distributed))
 
 
 CLI = ddpg.OffPolicyCLI(

@@ -21,8 +21,8 @@ from jaxrl_robot.replay.prioritized import (
     importance_weights,
     make_prioritized_replay,
 )
-from jaxrl_robot.replay.types import Transition
 from jaxrl_robot.replay.uniform import UniformReplay, UniformReplayState, UniformSample, make_uniform_replay
+from jaxrl_robot.types import Transition
 
 __all__ = [
     "STRATEGIES",

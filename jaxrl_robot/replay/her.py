@@ -33,7 +33,7 @@ import chex
 import jax
 import jax.numpy as jnp
 
-from jaxrl_robot.replay.types import Transition
+from jaxrl_robot.types import Transition
 
 __all__ = ["STRATEGIES", "GoalEnv", "GoalEpisode", "Her", "flatten_copies", "make_her", "num_copies"]
 
@@ -60,7 +60,7 @@ class GoalEpisode(NamedTuple):
       action: ``[T, A]`` actions taken (as stored for learning, in [-1, 1]).
       reward: ``[T]`` rewards for the real goal.
       next_obs: ``[T, O]`` next observations with the real goal.
-      terminated: ``[T]`` 1.0 where the episode terminated (success or failure), not truncation.
+      termination: ``[T]`` 1.0 where the episode terminated (success or failure), not truncation.
       failed: ``[T]`` 1.0 where it terminated by leaving the feasible region.
       valid: ``[T]`` 1.0 for steps inside the episode (a prefix of length ``L >= 1``).
       achieved: ``[T + 1, G]`` achieved goals before step 0, ..., after step T−1.
@@ -72,7 +72,7 @@ class GoalEpisode(NamedTuple):
     action: jax.Array
     reward: jax.Array
     next_obs: jax.Array
-    terminated: jax.Array
+    termination: jax.Array
     failed: jax.Array
     valid: jax.Array
     achieved: jax.Array
@@ -148,7 +148,7 @@ def make_her(
         valid = ep.valid.astype(bool)
         length = jnp.sum(valid.astype(jnp.int32))
         real_goal = jnp.broadcast_to(ep.goal, (ep.reward.shape[0], ep.goal.shape[-1]))
-        original = Transition(ep.obs, ep.action, ep.reward, ep.next_obs, ep.terminated)
+        original = Transition(ep.obs, ep.action, ep.reward, ep.next_obs, ep.termination)
         if extra == 0:
             add_axis = jax.tree.map(lambda x: x[:, None], original)
             return add_axis, valid[:, None], real_goal[:, None]

@@ -21,7 +21,7 @@ from jaxrl_robot.agents.ddpg import (
     td_target,
     twin_critic_loss,
 )
-from jaxrl_robot.agents.ddpg.core import with_env_target_clip
+from jaxrl_robot.agents.off_policy.config import with_env_target_clip
 from jaxrl_robot.checkpoint import Checkpointer
 from jaxrl_robot.evaluation import run_test_episodes, summarize_episodes
 from tests.replay.toy_goal_env import ToyGoalEnv
@@ -160,7 +160,7 @@ def test_replay_marks_termination_only(step_size, noise, expected):
     assert all(jax.tree.leaves(same))
     size = int(state.replay.size)
     assert size == (2 * 3 if expected == 0.0 else 2)
-    np.testing.assert_array_equal(state.replay.data.terminated[:size], expected)
+    np.testing.assert_array_equal(state.replay.data.termination[:size], expected)
     # a failing step carries the absorbing failure value: r + γ·failure_value = -1 + 0.9·(-10)
     np.testing.assert_allclose(state.replay.data.reward[:size], -1.0 if expected == 0.0 else -10.0, rtol=1e-6)
     assert float(metrics["episodes"]) == 2.0
@@ -177,7 +177,7 @@ def test_termination_metric_bootstraps_the_other_endings():
     state, _ = jax.jit(trainer.update)(jax.jit(trainer.init)(jax.random.PRNGKey(0)))
     size = int(state.replay.size)
     assert size == 2
-    np.testing.assert_array_equal(state.replay.data.terminated[:size], 0.0)
+    np.testing.assert_array_equal(state.replay.data.termination[:size], 0.0)
     np.testing.assert_allclose(state.replay.data.reward[:size], -1.0)
     with pytest.raises(ConfigError, match="termination_metric='ended' is not a metric of this env; choose from"):
         make_trainer(_tiny(episode_length=3, termination_metric="ended"), env)

@@ -17,10 +17,11 @@ from jaxrl_robot.agents.ddpg import (
     DDPGCritic,
     DDPGState,
     make_distributed_trainer,
+    make_learner,
     make_trainer,
     worker_shards,
 )
-from jaxrl_robot.agents.ddpg.learner import make_learner, sample
+from jaxrl_robot.agents.off_policy.learner import sample
 from jaxrl_robot.checkpoint import Checkpointer
 from jaxrl_robot.networks import init_running_stats
 from jaxrl_robot.replay import Transition, make_prioritized_replay
@@ -41,7 +42,7 @@ def _memory(raw_priorities, capacity=16, batch=3, obs_size=2, seed=0):
         action=jax.random.uniform(k[1], (n, 1), minval=-1.0, maxval=1.0),
         reward=jax.random.normal(k[2], (n,)),
         next_obs=jax.random.normal(k[3], (n, obs_size)),
-        terminated=(jnp.arange(n) % 4 == 3).astype(jnp.float32),
+        termination=(jnp.arange(n) % 4 == 3).astype(jnp.float32),
     )
     example = jax.tree.map(lambda x: x[0], rows)
     return replay, replay.add(replay.init(example), rows, priorities=jnp.asarray(raw_priorities, jnp.float32))
@@ -86,7 +87,7 @@ def test_workers_mean_gradient_equals_the_gradient_of_their_concatenated_batches
 
     (v, c), (W, b), (tv, tc), (tW, tb) = lin(a_p), lin(c_p), lin(ta_p), lin(tc_p)
     next_a = np.tanh(data.next_obs @ tv + tc)
-    y = data.reward + gamma * (1 - data.terminated) * (np.c_[data.next_obs, next_a] @ tW + tb)
+    y = data.reward + gamma * (1 - data.termination) * (np.c_[data.next_obs, next_a] @ tW + tb)
     x = np.c_[data.obs, data.action]
     delta = y - (x @ W + b)
     g_W = np.mean(-2 * w[:, None] * delta[:, None] * x, axis=0)  # the concatenated 12 rows
@@ -217,7 +218,7 @@ def test_workers_store_priorities_from_their_own_networks(steps_trainer):
         a_p, c_p = nets.actor_params, nets.critic_params
         q = critic.apply(c_p, data.obs[slot], data.action[slot])
         next_q = critic.apply(c_p, data.next_obs[slot], actor.apply(a_p, data.next_obs[slot]))
-        delta = data.reward[slot] + STEPS.gamma * (1 - data.terminated[slot]) * next_q - q
+        delta = data.reward[slot] + STEPS.gamma * (1 - data.termination[slot]) * next_q - q
         np.testing.assert_allclose(leaves[slot], (abs(float(delta)) + STEPS.priority_eps) ** ALPHA, rtol=1e-4)
         np.testing.assert_allclose(data.action[slot], actor.apply(a_p, data.obs[slot]), atol=1e-6)
     assert not np.allclose(data.action[3], actor.apply(state.actor_params, data.obs[3]), atol=1e-3)
@@ -281,12 +282,14 @@ def test_one_collection_of_both_kinds_of_lane_equals_two_separate_ones(schedule)
     """Synchronous and collecting lanes step as one batch (``collect(..., split=n)``): the rows, the
     lanes' states and noise, and the episode sums of each part equal those of collecting each part
     alone with the same key (every lane's randomness is keyed by its global id)."""
-    from jaxrl_robot.agents.ddpg import core
+    from jaxrl_robot.agents.ddpg import make_member
+    from jaxrl_robot.agents.off_policy import trainer
 
     config = _tiny(schedule=schedule, episode_length=3, unroll_length=4, noise_scale=(0.3,), num_envs=6)
-    s = core.setup(config, ToyGoalEnv(max_steps=3, step_size=0.3))
-    params = s.actor.init(jax.random.PRNGKey(1), jnp.zeros((1, s.obs_size)))
-    stats = init_running_stats(s.obs_size)
+    s = trainer.setup(config, ToyGoalEnv(max_steps=3, step_size=0.3), make_member)
+    sizes = (s.run.obs_size, s.run.action_size)
+    params = s.member.init(jax.random.PRNGKey(1), jax.random.PRNGKey(0), *sizes)["actor_params"]
+    stats = init_running_stats(s.run.obs_size)
     ids, n = jnp.arange(6), 2
     env_state, noise_state = s.acting.reset(jax.random.split(jax.random.PRNGKey(2), 6))
 

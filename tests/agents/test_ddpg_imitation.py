@@ -13,7 +13,7 @@ from brax.envs.base import State
 from envs_mjx.base import RobotEnv, sanitize_action
 from envs_mjx.config import ConfigError
 from jaxrl_robot.agents.ddpg import DDPGConfig, make_train, make_trainer
-from jaxrl_robot.agents.ddpg.losses import anchored_actor_loss
+from jaxrl_robot.agents.off_policy.losses import anchored_actor_loss
 from jaxrl_robot.imitation import expert_of, imitation_loss, mix_teacher, teacher_share
 
 

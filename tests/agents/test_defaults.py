@@ -15,8 +15,8 @@ from brax.envs.base import Env, State
 
 from envs_mjx.config import ConfigError
 from jaxrl_robot.agents import a2c, ddpg, ppo
-from jaxrl_robot.agents.common import action_sigma, make_actor_critic
 from jaxrl_robot.agents.ddpg import make_noise_for
+from jaxrl_robot.agents.on_policy import action_sigma, make_actor_critic
 
 SIZES = (1, 6)
 EPISODE = 10

@@ -49,7 +49,7 @@ def test_copy_counts(episode, strategy, k, copies):
     # copy 0 is the original transition, unchanged
     np.testing.assert_array_equal(tr.obs[:, 0], ep.obs)
     np.testing.assert_array_equal(tr.reward[:, 0], ep.reward)
-    np.testing.assert_array_equal(tr.terminated[:, 0], ep.terminated)
+    np.testing.assert_array_equal(tr.termination[:, 0], ep.termination)
     # every copy carries the recomputed reward and rebuilt observations for its goal
     v = slice(0, 5)  # the valid steps (padding is masked out)
     reward = env.compute_reward(ep.achieved[1:, None], goals, ep.achieved[:-1, None])
@@ -65,19 +65,19 @@ def test_final_goal_is_last_achieved_and_reached_at_the_end(episode):
     tr, mask, goals = make_her(env, "final").relabel(jax.random.PRNGKey(0), ep)
     np.testing.assert_array_equal(goals[:5, 1], jnp.broadcast_to(ep.achieved[5], (5, 3)))
     # the last real step reaches the relabelled goal: sparse reward 0 and terminal
-    assert float(tr.reward[4, 1]) == 0.0 and float(tr.terminated[4, 1]) == 1.0
+    assert float(tr.reward[4, 1]) == 0.0 and float(tr.termination[4, 1]) == 1.0
     assert bool((tr.reward[:4, 1] == -1.0).all())
     # a caller's goal test replaces the env's: never reached -> only failures are terminal
     tr, _, _ = make_her(env, "final", goal_reached=lambda a, g: jnp.zeros(a.shape[:-1], bool)).relabel(
         jax.random.PRNGKey(0), ep
     )
-    assert float(tr.terminated[4, 1]) == 0.0 and float(tr.reward[4, 1]) == 0.0
+    assert float(tr.termination[4, 1]) == 0.0 and float(tr.reward[4, 1]) == 0.0
 
 
 def test_final_is_skipped_when_the_final_state_left_the_feasible_region():
     env = ToyGoalEnv(reward="sparse", step_size=0.4)
     ep = _episode(env, jax.random.PRNGKey(0), jnp.ones((T, 3)), length=T)
-    length = int(np.argmax(np.asarray(ep.terminated))) + 1  # the env terminates on leaving the region
+    length = int(np.argmax(np.asarray(ep.termination))) + 1  # the env terminates on leaving the region
     ep = ep._replace(valid=(jnp.arange(T) < length).astype(jnp.float32))
     assert not bool(env.in_feasible_region(ep.ee_pos[length]))
     _, mask, _ = make_her(env, "final").relabel(jax.random.PRNGKey(0), ep)

@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from envs_mjx.config import ConfigError, check_choice, check_range
-from jaxrl_robot.agents.common import LR_SCHEDULES, ActorCriticConfig
+from jaxrl_robot.agents.on_policy import LR_SCHEDULES, ActorCriticConfig
 
 __all__ = ["BN_BATCHES", "LR_SCHEDULES", "PUSH_ORDERS", "A2CConfig", "A3CConfig"]
 
@@ -24,7 +24,7 @@ class A2CConfig(ActorCriticConfig):
     gradient averages over its own transitions (lines 15-16, batch-norm statistics over its
     own buffer); the global network applies the mean of the lanes' gradients once per round.
     The fields shared with the other actor-critic agents are those of
-    :class:`~jaxrl_robot.agents.common.ActorCriticConfig`; ``gamma`` discounts the n-step
+    :class:`~jaxrl_robot.agents.on_policy.ActorCriticConfig`; ``gamma`` discounts the n-step
     returns (Eq. 4.3).
     """
 

@@ -38,7 +38,7 @@ from envs_mjx.config import ConfigError
 from envs_mjx.playground import adapt
 from jaxrl_robot import parallel
 from jaxrl_robot.acting import rollout_until_done
-from jaxrl_robot.agents import common
+from jaxrl_robot.agents import core, on_policy
 from jaxrl_robot.agents.a2c.asynchrony import PushState, init_push_state, push_in_order, push_order, staleness_histogram
 from jaxrl_robot.agents.a2c.config import A2CConfig, A3CConfig
 from jaxrl_robot.agents.a2c.losses import Buffer, make_worker_loss
@@ -76,9 +76,9 @@ class NetParams:
 
 
 @struct.dataclass
-class A2CState(common.RunState):
+class A2CState(core.RunState):
     """Everything an A2C run needs to continue exactly: the lanes' ``env_state [K]``, ``key`` and
-    ``iteration`` (rounds done) of :class:`~jaxrl_robot.agents.common.RunState`, and
+    ``iteration`` (rounds done) of :class:`~jaxrl_robot.agents.core.RunState`, and
 
     Attributes:
       params: global :class:`NetParams`.
@@ -91,9 +91,9 @@ class A2CState(common.RunState):
 
 
 @struct.dataclass
-class A3CState(common.RunState):
+class A3CState(core.RunState):
     """Everything an A3C run needs to continue exactly: the lanes' ``env_state [K]``, ``key`` and
-    ``iteration`` (rounds done) of :class:`~jaxrl_robot.agents.common.RunState`, and
+    ``iteration`` (rounds done) of :class:`~jaxrl_robot.agents.core.RunState`, and
 
     Attributes:
       push: :class:`~jaxrl_robot.agents.a2c.asynchrony.PushState` whose ``global_`` is
@@ -112,7 +112,7 @@ def make_networks(config: A2CConfig, action_size: int) -> tuple[GaussianActor, C
     """
     # A2C's 'update' batch spans every device's lanes.
     synchronous_update_batch = not isinstance(config, A3CConfig) and config.bn_batch == "update"
-    return common.make_actor_critic(config, action_size, bn_axis_name=_LANES if synchronous_update_batch else None)
+    return on_policy.make_actor_critic(config, action_size, bn_axis_name=_LANES if synchronous_update_batch else None)
 
 
 def make_trainer(config: A2CConfig, env: Env, *, mesh: Mesh | None = None, iterations_per_update: int = 1) -> Trainer:
@@ -121,7 +121,7 @@ def make_trainer(config: A2CConfig, env: Env, *, mesh: Mesh | None = None, itera
     ``config`` is validated (an :class:`A3CConfig` selects A3C); the *unbatched* ``env`` (a brax
     ``Env`` or a MuJoCo Playground env, ``envs_mjx.playground.adapt``) is wrapped for training; the lanes
     are split over ``mesh`` (default: all devices); one ``update`` call runs ``iterations_per_update``
-    rounds (see :func:`~jaxrl_robot.agents.common.setup`).
+    rounds (see :func:`~jaxrl_robot.agents.core.setup`).
 
     Metrics of a chunk (scalars): ``actor_loss``, ``critic_loss``, ``entropy``, ``value``,
     ``advantage`` (means over rounds), ``reward`` (per step taken), ``steps_taken`` (env steps
@@ -132,7 +132,7 @@ def make_trainer(config: A2CConfig, env: Env, *, mesh: Mesh | None = None, itera
     """
     asynchronous = isinstance(config, A3CConfig)
     env = adapt(env)
-    run = common.setup(config, env, mesh, iterations_per_update)
+    run = core.setup(config, env, mesh, iterations_per_update)
     K, N, k_local = config.num_envs, config.unroll_length, run.local_lanes
     L = config.lanes_per_worker if asynchronous else k_local
     if k_local % L:
@@ -144,9 +144,9 @@ def make_trainer(config: A2CConfig, env: Env, *, mesh: Mesh | None = None, itera
     actor, critic = make_networks(config, run.action_size)
     worker_loss = make_worker_loss(config, actor, critic, axis_name=None if asynchronous else _LANES)
     applied = run.num_updates * iterations_per_update * W  # global updates of the whole run
-    end = common.lr_end_factor(config)  # "linear": annealed to 0 over the applied updates
-    actor_tx = common.make_optimizer(config.actor_lr, config.max_grad_norm, end, applied)
-    critic_tx = common.make_optimizer(config.critic_lr, config.max_grad_norm, end, applied)
+    end = on_policy.lr_end_factor(config)  # "linear": annealed to 0 over the applied updates
+    actor_tx = core.make_optimizer(config.actor_lr, config.max_grad_norm, end, applied)
+    critic_tx = core.make_optimizer(config.critic_lr, config.max_grad_norm, end, applied)
     momentum = config.bn_momentum
     if asynchronous:
         max_staleness = (W - 1) if config.push_order == "fixed" else 2 * (W - 1)
@@ -154,7 +154,7 @@ def make_trainer(config: A2CConfig, env: Env, *, mesh: Mesh | None = None, itera
     # ---- init ----------------------------------------------------------------------------
     def init(key: jax.Array) -> A2CState | A3CState:
         k_actor, k_critic, k_env, k_run = jax.random.split(key, 4)
-        params = NetParams(*common.init_actor_critic(k_actor, k_critic, actor, critic, run.obs_size))
+        params = NetParams(*on_policy.init_actor_critic(k_actor, k_critic, actor, critic, run.obs_size))
         env_state = run.reset(k_env)
         actor_opt, critic_opt = actor_tx.init(params.actor), critic_tx.init(params.critic)
         zero = jnp.zeros((), jnp.int32)
@@ -168,7 +168,7 @@ def make_trainer(config: A2CConfig, env: Env, *, mesh: Mesh | None = None, itera
         """Fill every lane's buffer: up to N steps, stopping (idle) after the lane's episode ends."""
 
         def policy(k: jax.Array, obs: jax.Array) -> jax.Array:
-            return common.sample_lanes(k, lane_ids, *dist(obs))
+            return on_policy.sample_lanes(k, lane_ids, *dist(obs))
 
         env_state, traj, mask = rollout_until_done(key, run.env, env_state, policy, N)
         return env_state, traj, Buffer.of(traj, mask)
@@ -183,8 +183,8 @@ def make_trainer(config: A2CConfig, env: Env, *, mesh: Mesh | None = None, itera
         """One global update: Adam steps of actor and critic, BN moving averages advanced."""
         params, actor_opt, critic_opt = global_
         (g_actor, g_critic), stats_delta = grads_and_stats
-        actor_p, actor_opt = common.apply_gradients(actor_tx, g_actor, actor_opt, params.actor)
-        critic_p, critic_opt = common.apply_gradients(critic_tx, g_critic, critic_opt, params.critic)
+        actor_p, actor_opt = core.apply_gradients(actor_tx, g_actor, actor_opt, params.actor)
+        critic_p, critic_opt = core.apply_gradients(critic_tx, g_critic, critic_opt, params.critic)
         stats = jax.tree.map(lambda s, d: momentum * s + d, params.actor_stats, stats_delta)
         return NetParams(actor=actor_p, actor_stats=stats, critic=critic_p), actor_opt, critic_opt
 
@@ -237,13 +237,13 @@ def make_trainer(config: A2CConfig, env: Env, *, mesh: Mesh | None = None, itera
         metrics["steps_taken"] = parallel.psum(steps)
         done = traj.done
         lane_returns = jnp.sum(jnp.where(done > 0, traj.metrics.get("episode_return", traj.reward), 0.0), axis=0)
-        return state, (metrics, common.episode_sums(traj), lane_returns, jnp.sum(done, axis=0), staleness)
+        return state, (metrics, on_policy.episode_sums(traj), lane_returns, jnp.sum(done, axis=0), staleness)
 
     def chunk(state):
         state, (metrics, sums, lane_ret, lane_eps, staleness) = jax.lax.scan(
             lambda s, _: iteration(s), state, None, length=iterations_per_update
         )
-        out = common.chunk_metrics(metrics, sums)
+        out = core.chunk_metrics(metrics, sums)
         out["steps_taken"] = jnp.sum(metrics["steps_taken"])
         out["applied_gradients"] = jnp.asarray(staleness.size, jnp.float32)
         out["staleness_mean"] = jnp.mean(staleness.astype(jnp.float32))
@@ -256,9 +256,9 @@ def make_trainer(config: A2CConfig, env: Env, *, mesh: Mesh | None = None, itera
 
     lanes = parallel.P(_LANES)
     if asynchronous:
-        specs = common.state_specs(A3CState, push=common.state_specs(PushState, snapshots=lanes), env_state=lanes)
+        specs = core.state_specs(A3CState, push=core.state_specs(PushState, snapshots=lanes), env_state=lanes)
     else:
-        specs = common.state_specs(A2CState, env_state=lanes)
+        specs = core.state_specs(A2CState, env_state=lanes)
     sharded_chunk = parallel.shard_lanes(
         chunk, run.mesh, in_specs=(specs,), out_specs=(specs, parallel.P(), lanes, lanes)
     )
@@ -282,6 +282,6 @@ def make_trainer(config: A2CConfig, env: Env, *, mesh: Mesh | None = None, itera
     return run.trainer(init, update, policy)
 
 
-make_train = common.make_train_for(make_trainer)
+make_train = core.make_train_for(make_trainer)
 """``make_train(config, env, *, mesh=None, iterations_per_update=1) -> train``: ``train(key) -> (final
 A2CState | A3CState, metrics [num_updates])``, the whole run, pure and jittable (vmappable over keys)."""

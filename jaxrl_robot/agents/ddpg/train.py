@@ -1,4 +1,4 @@
-"""DDPG with prioritised and hindsight replay as a pure, jit-compiled training function.
+"""DDPG (thesis §3.1, Algorithm 1) — and TD3 (§6.2) — as a member of the off-policy family.
 
 >>> trainer = make_trainer(DDPGConfig(her="future", her_k=2), env)   # any unbatched brax Env
 >>> state = jax.jit(trainer.init)(key)
@@ -6,118 +6,166 @@
 >>> train = make_train(config, env)                                  # or the whole run
 >>> state, metrics = jax.jit(train)(key)
 
-One iteration of the ``"episodes"`` schedule (thesis §3.4.2, Algorithms 1–2): ``num_envs``
-lanes each run one whole episode with ``a = μ(s) + noise`` (Eq. 3.7); every transition is
-stored with its real goal and, with HER, again with each additional goal and a recomputed
-reward; then ``updates_per_cycle`` updates.  The ``"steps"`` schedule (§3.5, Table 3.3)
-steps auto-resetting lanes continuously and updates after every ``unroll_length`` steps.
-Acting is :mod:`~jaxrl_robot.agents.ddpg.acting`, the update (Algorithm 1, lines 9–17)
-:mod:`~jaxrl_robot.agents.ddpg.learner`.
-
-With ``config.distributed`` :func:`make_trainer` builds distributed DDPG (thesis §4.2,
-:mod:`~jaxrl_robot.agents.ddpg.distributed`) from the same pieces.
-
-The replay buffer lives in the training state on the device, so a checkpoint of the state
-resumes a run exactly.
-
-Devices: the lanes (acting, env steps, exploration noise, episode bookkeeping, HER relabelling)
-are split over the device mesh with ``parallel.shard_lanes``; each iteration's transitions are
-gathered from every device in global lane order, so the replay memory, the observation
-statistics and the learner (sampling, updates, priorities) are replicated and identical on
-every device.  Per-lane randomness is keyed by *global* lane index, so a run gives the same
-result on any number of devices (up to float summation order of the episode metrics).
+DDPG supplies its networks (:func:`make_networks`) and its gradient steps (:func:`make_update`): critic
+step on ``mean w (Q(s, a) − y)²`` with ``y = r + γ (1 − d) Q'(s', μ'(s'))`` (Eq. 3.4–3.5); actor step
+on ``−mean Q(s, μ(s))`` (Eq. 3.6); soft target updates with ε.  Options: twin critics with the clipped
+double-Q target (Eq. 6.2), target smoothing (Eq. 6.3), the actor and targets moving every
+``policy_delay`` critic updates, reward scale and shift, target clipping.  Everything else — the
+schedules, acting, replay with PER and HER, the learner loop, the imitation stage and distributed DDPG
+(thesis §4.2, ``config.distributed``) — is the family's (:mod:`jaxrl_robot.agents.off_policy`).
 """
 
 from __future__ import annotations
 
-import functools
+from collections.abc import Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
+import optax
 from brax.envs.base import Env
 
-from jaxrl_robot import parallel
-from jaxrl_robot.agents import common
-from jaxrl_robot.agents.ddpg import core
+from jaxrl_robot.agents import core
 from jaxrl_robot.agents.ddpg.config import DDPGConfig
-from jaxrl_robot.agents.ddpg.core import DDPGState
-from jaxrl_robot.agents.ddpg.distributed import make_distributed_trainer
-from jaxrl_robot.agents.ddpg.learner import SINGLE
-from jaxrl_robot.types import Metrics, Trainer
+from jaxrl_robot.agents.ddpg.losses import smooth_target_action
+from jaxrl_robot.agents.ddpg.networks import DDPGActor, DDPGCritic
+from jaxrl_robot.agents.off_policy import distributed, trainer
+from jaxrl_robot.agents.off_policy import learner as family
+from jaxrl_robot.agents.off_policy.learner import LearnerState, Update, Workers, critic_target
+from jaxrl_robot.agents.off_policy.losses import (
+    actor_loss,
+    anchored_actor_loss,
+    clipped_double_q,
+    critic_loss,
+    soft_update,
+    twin_critic_loss,
+)
+from jaxrl_robot.agents.off_policy.networks import critic_values, first_critic, init_critics
+from jaxrl_robot.types import RunningStats, Trainer, Transition
 
-__all__ = ["make_train", "make_trainer"]
+__all__ = ["make_distributed_trainer", "make_learner", "make_member", "make_networks", "make_train", "make_trainer",
+           "make_update"]  # fmt: skip
+
+
+def make_networks(config: DDPGConfig, action_size: int) -> tuple[DDPGActor, DDPGCritic]:
+    """Actor and critic of the configured widths (thesis §3.4.1, §3.5.2)."""
+    return (
+        DDPGActor(action_size=action_size, hidden=tuple(config.actor_hidden), output=config.actor_output),
+        DDPGCritic(hidden=tuple(config.critic_hidden)),
+    )
+
+
+def make_update(
+    config: DDPGConfig, actor: DDPGActor, critic: DDPGCritic, actor_tx: optax.GradientTransformation,
+    critic_tx: optax.GradientTransformation,
+) -> Update:
+    """DDPG's (TD3's) gradient steps for the family's learner loop."""
+    twin, smoothing = config.twin_critics, config.target_noise > 0
+    q_values, q_first = critic_values(critic, twin), first_critic(critic, twin)
+
+    def target(actor_p: Any, critic_p: Any, tr: Transition, key: jax.Array | None) -> jax.Array:
+        """``y [N]`` of normalised rows under the networks ``(actor_p, critic_p)`` (Eq. 3.5, 6.2, 6.3)."""
+        next_a = actor.apply(actor_p, tr.next_obs)
+        if key is not None:
+            next_a = smooth_target_action(key, next_a, config.target_noise, config.target_noise_clip)
+        if twin:
+            next_q = clipped_double_q(q_values(critic_p, tr.next_obs, next_a))
+        else:
+            next_q = critic.apply(critic_p, tr.next_obs, next_a)
+        return critic_target(config, tr, next_q)
+
+    def sample_key(key: jax.Array) -> jax.Array:
+        return jax.random.split(key)[0] if smoothing else key
+
+    def critic_step(ls: LearnerState, tr: Transition, weights: jax.Array | None, key: jax.Array, workers: Workers):
+        y = target(ls.target_actor_params, ls.target_critic_params, tr, jax.random.split(key)[1] if smoothing else None)
+
+        def c_loss(p: Any) -> tuple[jax.Array, jax.Array]:
+            if twin:
+                return twin_critic_loss(q_values(p, tr.obs, tr.action), y, weights)
+            return critic_loss(critic.apply(p, tr.obs, tr.action), y, weights)
+
+        (closs, td), grads = jax.value_and_grad(c_loss, has_aux=True)(ls.critic_params)
+        closs, grads = workers.mean((closs, grads))
+        critic_p, c_opt = core.apply_gradients(critic_tx, grads, ls.critic_opt, ls.critic_params)
+        return ls.replace(critic_params=critic_p, critic_opt=c_opt), closs, td
+
+    def a_loss(p: Any, ls: LearnerState, obs: jax.Array, key: jax.Array, anchor: Callable | None):
+        q = q_first(ls.critic_params, obs, actor.apply(p, obs))
+        if anchor is None:
+            return actor_loss(q), q
+        return anchored_actor_loss(q, anchor(jax.random.fold_in(key, 1), p), config.imitation_weight), q
+
+    def actor_step(ls: LearnerState, tr: Transition, key: jax.Array, workers: Workers, anchor: Callable | None):
+        """Actor step on ``−mean Q1(s, μ(s))`` (with the anchor, where given)."""
+        (aloss, q), grads = jax.value_and_grad(a_loss, has_aux=True)(ls.actor_params, ls, tr.obs, key, anchor)
+        aloss, grads = workers.mean((aloss, grads))
+        actor_p, a_opt = core.apply_gradients(actor_tx, grads, ls.actor_opt, ls.actor_params)
+        return ls.replace(actor_params=actor_p, actor_opt=a_opt), aloss, q
+
+    def actor_loss_only(ls: LearnerState, tr: Transition, key: jax.Array, workers: Workers, anchor: Callable | None):
+        aloss, q = a_loss(ls.actor_params, ls, tr.obs, key, anchor)
+        return workers.mean(aloss), q
+
+    def targets(ls: LearnerState) -> LearnerState:
+        return ls.replace(target_actor_params=soft_update(ls.target_actor_params, ls.actor_params, config.tau),
+                          target_critic_params=soft_update(ls.target_critic_params, ls.critic_params, config.tau))
+
+    def td_error(actor_p: Any, critic_p: Any, tr: Transition) -> jax.Array:
+        """``δ = y − Q(s, a)`` from one network copy alone (a collecting worker has no targets): ``[N]``, ``[2, N]``."""
+        td = target(actor_p, critic_p, tr, None)[None] - q_values(critic_p, tr.obs, tr.action)
+        return td if twin else td[0]
+
+    def priority(td: jax.Array) -> jax.Array:
+        """``δ`` (its absolute value is the priority), or the mean of the twin critics' ``|δ_k|``."""
+        return jnp.mean(jnp.abs(td), axis=0) if twin else td
+
+    return Update(sample_key=sample_key, critic=critic_step, actor=actor_step, actor_loss=actor_loss_only,
+                  targets=targets, td_error=td_error, priority=priority)
+
+
+def make_member(config: DDPGConfig, action_size: int, critic_updates: int) -> trainer.Member:
+    """DDPG as a :class:`~jaxrl_robot.agents.off_policy.trainer.Member` (``critic_updates``: the run's critic
+    updates, over which ``lr_end_factor`` anneals the step sizes; the actor's are that over ``policy_delay``)."""
+    actor, critic = make_networks(config, action_size)
+    actor_tx = core.make_optimizer(config.actor_lr, config.max_grad_norm, config.lr_end_factor,
+                                   critic_updates // config.policy_delay)  # fmt: skip
+    critic_tx = core.make_optimizer(config.critic_lr, config.max_grad_norm, config.lr_end_factor, critic_updates)
+
+    def init(k_actor: jax.Array, k_critic: jax.Array, obs_size: int, action_size: int) -> dict[str, Any]:
+        actor_params = actor.init(k_actor, jnp.zeros((1, obs_size), jnp.float32))
+        critic_params = init_critics(critic, k_critic, obs_size, action_size, config.twin_critics)
+        return dict(actor_params=actor_params, critic_params=critic_params, target_actor_params=actor_params,
+                    target_critic_params=critic_params, actor_opt=actor_tx.init(actor_params),
+                    critic_opt=critic_tx.init(critic_params), extras=())  # fmt: skip
+
+    return trainer.Member(act=actor.apply, init=init, update=make_update(config, actor, critic, actor_tx, critic_tx))
+
+
+def make_learner(
+    config: DDPGConfig, actor: DDPGActor, critic: DDPGCritic, replay: Any, actor_tx: optax.GradientTransformation,
+    critic_tx: optax.GradientTransformation, norm: Callable[[RunningStats, jax.Array], jax.Array], min_stored: int,
+) -> family.Learner:
+    """The family's :class:`~jaxrl_robot.agents.off_policy.learner.Learner` of DDPG's update on these networks."""
+    update = make_update(config, actor, critic, actor_tx, critic_tx)
+    return family.make_learner(config, update, replay, norm, min_stored)
 
 
 def make_trainer(
-    config: DDPGConfig,
-    env: Env,
-    *,
-    mesh: jax.sharding.Mesh | None = None,
-    iterations_per_update: int | None = None,
+    config: DDPGConfig, env: Env, *, mesh: jax.sharding.Mesh | None = None, iterations_per_update: int | None = None
 ) -> Trainer:
-    """Build the DDPG :class:`~jaxrl_robot.types.Trainer` for ``env``.
-
-    Args:
-      config: hyper-parameters (validated here); ``config.distributed`` selects distributed DDPG.
-      env: an *unbatched* env: a brax ``Env`` (brax's or ours) or a MuJoCo Playground env
-        (``envs_mjx.playground.adapt``); with HER it must provide the goal-conditioned API
-        (``core.GOAL_API``) and ``state.info["ee_pos"]``.
-      mesh: device mesh from ``parallel.lane_mesh`` (default: all devices); the ``num_envs``
-        lanes are split over it, the replay memory and the learner are replicated.
-      iterations_per_update: iterations per ``update`` call (default: one epoch of
-        ``cycles_per_epoch`` cycles for 'episodes', 1 for 'steps').
-    Raises:
-      ConfigError: invalid settings, or HER on an env without the goal API.
-      ValueError: ``num_envs`` (or, distributed, the workers) do not divide over the mesh's devices.
-    """
-    if config.distributed:
-        return make_distributed_trainer(config, env, mesh=mesh, iterations_per_update=iterations_per_update)
-    s = core.setup(config, env, mesh, iterations_per_update)
-
-    imitation = s.imitation
-
-    def iteration(state: DDPGState, lane_ids: jax.Array) -> tuple[DDPGState, tuple]:
-        """Act in this device's lanes ``lane_ids [b]``, store every device's rows, then learn (in the
-        imitation stage the actor fits the expert's labels instead of maximising Q)."""
-        key, k_act, k_learn, k_imitate = jax.random.split(state.key, 4)
-        factor = core.noise_factor(config, state.iteration)
-        imitating, teacher = None, None
-        if imitation is not None:
-            imitating = imitation.active(state.iteration)
-            factor = jnp.where(imitating, 0.0, 1.0 if factor is None else factor)  # no noise while imitating
-            teacher = imitation.teacher(lane_ids, state.iteration)
-        policy = s.acting.policy(lane_ids, state.actor_params, state.obs_stats, factor, core.warming_up(config, state))
-        got = s.acting.collect(k_act, lane_ids, policy, state.env_state, state.noise_state, teacher)
-        rows, mask = s.acting.gather(got.rows, got.mask)
-        state = core.store(s, state.replace(env_state=got.env_state, noise_state=got.noise_state), rows, mask)
-        extra = ()
-        if imitation is not None:
-            labels, _ = s.acting.gather(got.labels, None)
-            actor_p, opt, demos, loss = imitation.learn(k_imitate, state.actor_params, state.imitation_opt,
-                                                        state.demos, state.obs_stats, rows.obs, labels,
-                                                        state.iteration)
-            state = state.replace(actor_params=actor_p, imitation_opt=opt, demos=demos)
-            extra = loss
-        actor_on = None if imitating is None else ~imitating
-        anchor = None
-        if imitation is not None and imitation.anchor is not None:  # the BC term in the actor loss (TD3+BC)
-            anchor = functools.partial(imitation.anchor, stats=state.obs_stats, buf=state.demos)
-        state, sums, count = s.learner.learn(state, k_learn, s.updates_per_iteration, SINGLE, actor_on, anchor)
-        state = state.replace(key=key, iteration=state.iteration + 1)
-        return state, (sums, count, got.sums, extra)
-
-    def chunk_fn(state: DDPGState) -> tuple[DDPGState, Metrics]:
-        lane_ids = parallel.global_lane_ids(s.local_lanes)
-        state, metrics, extra = core.run_chunk(s, state, lambda st: iteration(st, lane_ids))
-        if imitation is not None:
-            # mean over the chunk's imitation updates (NaN once the stage is over, without an anchor)
-            metrics["imitation_loss"] = jnp.nanmean(extra) if extra.size else jnp.nan
-        return state, metrics
-
-    return core.make_trainer_of(s, functools.partial(core.init_state, s), chunk_fn, core.state_specs())
+    """Build the DDPG :class:`~jaxrl_robot.types.Trainer` for ``env`` (``config.distributed``: distributed DDPG);
+    the arguments and errors are :func:`jaxrl_robot.agents.off_policy.make_trainer`'s."""
+    return trainer.make_trainer(config, env, make_member, mesh=mesh, iterations_per_update=iterations_per_update)
 
 
-make_train = common.make_train_for(make_trainer)
+def make_distributed_trainer(config: DDPGConfig, env: Env, **options: Any) -> Trainer:
+    """Distributed DDPG (thesis §4.2): :func:`jaxrl_robot.agents.off_policy.distributed.make_distributed_trainer`
+    of DDPG (``options``: ``mesh``, ``iterations_per_update``)."""
+    return distributed.make_distributed_trainer(config, env, make_member, **options)
+
+
+make_train = core.make_train_for(make_trainer)
 """``make_train(config, env, *, mesh=None, iterations_per_update=None) -> train``: ``train(key) -> (final
-DDPGState, metrics [num_updates])``, the whole run, pure and jittable (``config.distributed`` as in
+state, metrics [num_updates])``, the whole run, pure and jittable (``config.distributed`` as in
 :func:`make_trainer`)."""

@@ -6,7 +6,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from envs_mjx.config import ConfigError, check_choice, check_range
-from jaxrl_robot.agents.common import ActorCriticConfig, check_counts
+from jaxrl_robot.agents.core import check_counts
+from jaxrl_robot.agents.on_policy import ActorCriticConfig
 
 __all__ = ["LSTM_STARTS", "OBJECTIVES", "POLICIES", "PRETRAINS", "PPOConfig"]
 
@@ -26,7 +27,7 @@ class PPOConfig(ActorCriticConfig):
     Each mini-batch takes ``B / K`` transitions from every lane (without replacement within
     the lane), which keeps the result independent of how lanes are spread over devices.
     The fields shared with the other actor-critic agents are those of
-    :class:`~jaxrl_robot.agents.common.ActorCriticConfig`.
+    :class:`~jaxrl_robot.agents.on_policy.ActorCriticConfig`.
     """
 
     minibatch_size: int = 32

@@ -18,7 +18,7 @@ from typing import Any, NamedTuple
 
 import jax
 
-from jaxrl_robot.agents import common
+from jaxrl_robot.agents import on_policy
 from jaxrl_robot.agents.ppo.config import PPOConfig
 from jaxrl_robot.networks import apply_actor
 from jaxrl_robot.recurrent import LSTMActor, LSTMCritic, unroll, zero_carry
@@ -56,10 +56,10 @@ class PPONets(NamedTuple):
 
 
 def make_ppo_nets(config: PPOConfig, action_size: int, bn_axis_name: str | None = None) -> PPONets:
-    """The :class:`PPONets` of ``config.policy`` (``bn_axis_name``: see ``common.make_actor_critic``)."""
+    """The :class:`PPONets` of ``config.policy`` (``bn_axis_name``: see ``on_policy.make_actor_critic``)."""
     if config.policy == "lstm":
         return _lstm_nets(config, action_size)
-    actor, critic = common.make_actor_critic(
+    actor, critic = on_policy.make_actor_critic(
         config, action_size, bn_axis_name=bn_axis_name, squash=not config.tanh_actions
     )
 
@@ -80,13 +80,13 @@ def make_ppo_nets(config: PPOConfig, action_size: int, bn_axis_name: str | None 
         return critic.apply({"params": params}, next_obs)
 
     def init(key_actor, key_critic, obs_size):
-        return common.init_actor_critic(key_actor, key_critic, actor, critic, obs_size)
+        return on_policy.init_actor_critic(key_actor, key_critic, actor, critic, obs_size)
 
     return PPONets(1, actor, critic, init, lambda shape: (), act, actor_forward, critic_forward, next_values)
 
 
 def _lstm_nets(config: PPOConfig, action_size: int) -> PPONets:
-    sigma = common.action_sigma(config, action_size)
+    sigma = on_policy.action_sigma(config, action_size)
     actor = LSTMActor(action_size, tuple(config.actor_hidden), config.lstm_size, sigma, config.learn_std)
     critic = LSTMCritic(tuple(config.critic_hidden), config.lstm_size)
     size = config.lstm_size

@@ -40,7 +40,7 @@ from envs_mjx.config import ConfigError
 from envs_mjx.playground import adapt
 from jaxrl_robot import parallel
 from jaxrl_robot.acting import per_lane_keys, rollout_with_memory
-from jaxrl_robot.agents import common
+from jaxrl_robot.agents import core, on_policy
 from jaxrl_robot.agents.ppo.config import PPOConfig
 from jaxrl_robot.agents.ppo.losses import adapt_kl_beta, make_actor_loss, value_loss
 from jaxrl_robot.agents.ppo.nets import make_ppo_nets
@@ -57,9 +57,9 @@ _LANES = parallel.LANES
 
 
 @struct.dataclass
-class PPOState(common.RunState):
+class PPOState(core.RunState):
     """Everything a PPO run needs to continue exactly: the lanes' ``env_state [K]``, ``key`` and
-    ``iteration`` (iterations done) of :class:`~jaxrl_robot.agents.common.RunState`, and
+    ``iteration`` (iterations done) of :class:`~jaxrl_robot.agents.core.RunState`, and
 
     Attributes:
       actor_params, actor_stats: actor ``params`` and ``batch_stats`` (``{}`` without batch-norm).
@@ -138,12 +138,12 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
     ``config`` is validated; ``env`` is wrapped for training (lanes, time limit, true auto-reset,
     the reset pool and lane groups of ``config``); the lanes are split over ``mesh`` (default: all
     devices); one ``update`` call runs ``iterations_per_update`` iterations (see
-    :func:`~jaxrl_robot.agents.common.setup`).
+    :func:`~jaxrl_robot.agents.core.setup`).
     """
     env = adapt(env)
     acting_env = ClipActionWrapper(env) if config.clip_actions else env
     acting_env = TanhActionWrapper(acting_env) if config.tanh_actions else acting_env
-    run = common.setup(
+    run = core.setup(
         config,
         acting_env,
         mesh,
@@ -159,13 +159,13 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
     S = config.advantage_segment  # steps per advantage segment (0: advantages once per batch)
     use_table = uses_start_table(config, env)
     pretrain_iters = pretrain_iterations(config, env)
-    tables = common.schedule_tables(config.schedule, env)
+    tables = on_policy.schedule_tables(config.schedule, env)
     iterations = run.num_updates * iterations_per_update
     schedule_len = float(iterations)
-    end = common.lr_end_factor(config)
+    end = on_policy.lr_end_factor(config)
     actor_steps, critic_steps = optimizer_steps(config, iterations, pretrain_iters)
-    actor_tx = common.make_optimizer(config.actor_lr, config.max_grad_norm, end, actor_steps)
-    critic_tx = common.make_optimizer(config.critic_lr, config.max_grad_norm, end, critic_steps)
+    actor_tx = core.make_optimizer(config.actor_lr, config.max_grad_norm, end, actor_steps)
+    critic_tx = core.make_optimizer(config.critic_lr, config.max_grad_norm, end, critic_steps)
 
     def obs_norm(stats: RunningStats, obs: jax.Array) -> jax.Array:
         return normalize(stats if config.normalize_obs else None, obs)
@@ -193,7 +193,7 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
             critic_opt=critic_tx.init(critic_params),
             obs_stats=init_running_stats(obs_size),
             kl_beta=jnp.asarray(config.kl_beta, jnp.float32),
-            env_state=run.reset(k_env, lambda: common.initial_env_params(env, tables)),
+            env_state=run.reset(k_env, lambda: on_policy.initial_env_params(env, tables)),
             memory=nets.memory((config.num_envs,)),
             start_table=nets.memory((env.max_steps + 1,)) if use_table else (),
             key=k_run,
@@ -267,7 +267,7 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
         key, k_roll, k_actor, k_critic = jax.random.split(state.key, 4)
         lane_ids = parallel.global_lane_ids(k_local)
         progress = state.iteration.astype(jnp.float32) / schedule_len
-        env_state = common.apply_schedule(state.env_state, tables, progress)
+        env_state = on_policy.apply_schedule(state.env_state, tables, progress)
 
         pretraining = state.iteration < pretrain_iters
 
@@ -288,7 +288,7 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
         def policy(k: jax.Array, memory: Any, s: State) -> tuple[Any, jax.Array, Any]:
             memory_next, (mean, log_std) = act(state, memory, s.obs)
             record = (memory, s.info["k"] if use_table else (), search(jax.random.fold_in(k, 1), s))
-            return memory_next, common.sample_lanes(k, lane_ids, mean, log_std), record
+            return memory_next, on_policy.sample_lanes(k, lane_ids, mean, log_std), record
 
         first_done = env_state.done.astype(jnp.float32)
         env_state, memory, (traj, (mem_seq, k_seq, searched)) = rollout_with_memory(
@@ -324,7 +324,7 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
             params, opt = carry
             mb = minibatch(k, lane_ids, (inputs, targets))
             loss, grads = jax.value_and_grad(critic_loss_fn)(params, mb)
-            return common.apply_gradients(critic_tx, parallel.pmean(grads), opt, params), loss
+            return core.apply_gradients(critic_tx, parallel.pmean(grads), opt, params), loss
 
         def critic_update():
             return jax.lax.scan(
@@ -350,7 +350,7 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
             mb = (inputs_mb, *map(flat, rest))
             grad_fn = jax.value_and_grad(actor_loss_fn, has_aux=True)
             (loss, (stats, clip_frac, entropy, _)), grads = grad_fn(params, stats, mb, state.kl_beta)
-            params, opt = common.apply_gradients(actor_tx, parallel.pmean(grads), opt, params)
+            params, opt = core.apply_gradients(actor_tx, parallel.pmean(grads), opt, params)
             return (params, stats, opt), (loss, clip_frac, entropy)
 
         def ppo_actor_update():
@@ -377,9 +377,9 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
             mb = (mb_inputs, *map(flat, (action, normalized(adv), mb_mean, mb_log_std)))
             grad_fn = jax.value_and_grad(actor_loss_fn, has_aux=True)
             (loss, (a_stats, clip_frac, entropy, _)), grads = grad_fn(a_params, a_stats, mb, state.kl_beta)
-            a_params, a_opt = common.apply_gradients(actor_tx, parallel.pmean(grads), a_opt, a_params)
+            a_params, a_opt = core.apply_gradients(actor_tx, parallel.pmean(grads), a_opt, a_params)
             c_loss, grads = jax.value_and_grad(critic_loss_fn)(c_params, (mb_inputs, adv + v))
-            c_params, c_opt = common.apply_gradients(critic_tx, parallel.pmean(grads), c_opt, c_params)
+            c_params, c_opt = core.apply_gradients(critic_tx, parallel.pmean(grads), c_opt, c_params)
             return ((a_params, a_stats, a_opt), (c_params, c_opt)), (loss, clip_frac, entropy, c_loss)
 
         def joint_update():
@@ -410,7 +410,7 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
             (critic_params, critic_opt), c_loss = critic_update()
 
         # Same dtypes in as out (an env may return weak-typed metrics), so the jitted chunk never retraces.
-        env_state = common.cast_like(env_state, state.env_state)
+        env_state = core.cast_like(env_state, state.env_state)
         new_state = state.replace(
             actor_params=actor_params, actor_stats=actor_stats, actor_opt=actor_opt,
             critic_params=critic_params, critic_opt=critic_opt, obs_stats=obs_stats, kl_beta=kl_beta,
@@ -430,13 +430,13 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
         if pretrain_iters:
             metrics["pretraining"] = pretraining.astype(jnp.float32)
             metrics["search_better"] = parallel.pmean(jnp.mean((searched[1] > traj.reward).astype(jnp.float32)))
-        return new_state, (metrics, common.episode_sums(traj))
+        return new_state, (metrics, on_policy.episode_sums(traj))
 
     def chunk(state: PPOState) -> tuple[PPOState, Metrics]:
         state, (metrics, sums) = jax.lax.scan(lambda s, _: iteration(s), state, None, length=iterations_per_update)
-        return state, common.chunk_metrics(metrics, sums)
+        return state, core.chunk_metrics(metrics, sums)
 
-    specs = common.state_specs(PPOState, env_state=parallel.P(_LANES), memory=parallel.P(_LANES))
+    specs = core.state_specs(PPOState, env_state=parallel.P(_LANES), memory=parallel.P(_LANES))
     update = parallel.shard_lanes(chunk, run.mesh, in_specs=(specs,), out_specs=(specs, parallel.P()))
 
     def acted(action: jax.Array) -> jax.Array:
@@ -465,6 +465,6 @@ def make_trainer(config: PPOConfig, env: Env, *, mesh: Mesh | None = None, itera
     return run.trainer(init, update, policy, sample_policy)
 
 
-make_train = common.make_train_for(make_trainer)
+make_train = core.make_train_for(make_trainer)
 """``make_train(config, env, *, mesh=None, iterations_per_update=1) -> train``: ``train(key) -> (final
 PPOState, metrics [num_updates])``, the whole run, pure and jittable (vmappable over keys)."""

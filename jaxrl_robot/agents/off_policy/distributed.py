@@ -1,10 +1,11 @@
-"""Distributed DDPG (thesis §4.2, Algorithms 4–6): synchronous and collecting workers, one shared replay.
+"""Distributed off-policy training (thesis §4.2, Algorithms 4–6: distributed DDPG, and so TD3 and SAC):
+synchronous and collecting workers, one shared replay.
 
 >>> config = DDPGConfig(schedule="steps", per=True, distributed=True, sync_workers=4, collect_workers=4)
 >>> trainer = make_trainer(config, env)        # jaxrl_robot.agents.ddpg.make_trainer dispatches here
 
 The acting, the replay, the update and the losses are the single learner's
-(:mod:`~jaxrl_robot.agents.ddpg.core`); this module adds the workers.
+(:mod:`~jaxrl_robot.agents.off_policy.trainer`); this module adds the workers.
 
 Where things live:
 
@@ -14,7 +15,7 @@ Where things live:
   the latest global parameters.  In every update each worker samples its own mini-batch of
   ``batch_size`` and computes its gradients; their mean is applied once (Algorithm 4) and every
   worker's sampled indices and new priorities are written back
-  (:func:`~jaxrl_robot.agents.ddpg.learner.worker_shards`).  A worker's target networks follow
+  (:func:`~jaxrl_robot.agents.off_policy.learner.worker_shards`).  A worker's target networks follow
   the same global parameters as every other worker's, so one replicated set stands for all.
 * **Collecting workers** (Algorithm 6): ``collect_workers`` further groups of ``collect_lanes``
   lanes, split over the devices, that only act, each with its own noise processes (and, with
@@ -55,6 +56,7 @@ act with the global parameters); ``collect_*`` are the collecting workers'.
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import jax
@@ -63,15 +65,17 @@ from brax.envs.base import Env, State
 from flax import struct
 
 from jaxrl_robot import parallel
-from jaxrl_robot.agents.ddpg import core
-from jaxrl_robot.agents.ddpg.acting import Collected, LanePolicy, tree_where
-from jaxrl_robot.agents.ddpg.config import DDPGConfig
-from jaxrl_robot.agents.ddpg.core import DDPGState
-from jaxrl_robot.agents.ddpg.learner import worker_shards
+from jaxrl_robot.acting import lane_select
+from jaxrl_robot.agents import core
+from jaxrl_robot.agents.off_policy import trainer
+from jaxrl_robot.agents.off_policy.acting import Collected, LanePolicy
+from jaxrl_robot.agents.off_policy.config import OffPolicyConfig
+from jaxrl_robot.agents.off_policy.learner import worker_shards
+from jaxrl_robot.agents.off_policy.trainer import MakeMember, OffPolicyState
 from jaxrl_robot.noise import NoiseState
 from jaxrl_robot.types import Metrics, RunningStats, Trainer
 
-__all__ = ["Collectors", "DistributedDDPGState", "fetch_phases", "make_distributed_trainer"]
+__all__ = ["Collectors", "DistributedState", "fetch_phases", "make_distributed_trainer"]
 
 
 @struct.dataclass
@@ -95,11 +99,12 @@ class Collectors:
 
 
 @struct.dataclass
-class DistributedDDPGState(DDPGState):
-    """:class:`~jaxrl_robot.agents.ddpg.core.DDPGState` (the global networks, the shared replay and the
-    synchronous workers' lanes) plus ``collectors`` (:class:`Collectors`, None without collecting workers)."""
+class DistributedState(OffPolicyState):
+    """:class:`~jaxrl_robot.agents.off_policy.trainer.OffPolicyState` (the global networks, the shared replay
+    and the synchronous workers' lanes) plus ``collectors`` (:class:`Collectors`, None without collecting
+    workers)."""
 
-    collectors: Collectors | None
+    collectors: Collectors | None = None
 
 
 def fetch_phases(worker_ids: jax.Array, collect_workers: int, fetch_every: int) -> jax.Array:
@@ -135,9 +140,10 @@ def _split_collected(got: Collected, n: int) -> tuple[Collected, Collected]:
             Collected(*tail, sums=jax.tree.map(lambda x: x[1], got.sums)))  # fmt: skip
 
 
-def make_distributed_trainer(config: DDPGConfig, env: Env, **options: Any) -> Trainer:
-    """The distributed DDPG :class:`~jaxrl_robot.types.Trainer`; ``options`` are ``make_trainer``'s
-    keywords (``mesh``, ``iterations_per_update``), which hands distributed configs to this function.
+def make_distributed_trainer(config: OffPolicyConfig, env: Env, make_member: MakeMember, **options: Any) -> Trainer:
+    """The distributed :class:`~jaxrl_robot.types.Trainer` of the algorithm ``make_member``; ``options`` are
+    ``trainer.make_trainer``'s keywords (``mesh``, ``iterations_per_update``), which hands distributed
+    configs to this function.
 
     Raises:
       ConfigError: as ``make_trainer``; ``distributed`` must be set.
@@ -145,8 +151,8 @@ def make_distributed_trainer(config: DDPGConfig, env: Env, **options: Any) -> Tr
     """
     if not config.distributed:
         raise ValueError("make_distributed_trainer needs distributed=True")
-    s = core.setup(config, env, **options)
-    devices = s.mesh.shape[parallel.LANES]
+    s = trainer.setup(config, env, make_member, **options)
+    devices = s.run.mesh.shape[parallel.LANES]
     for name in ("sync_workers", "collect_workers"):
         if getattr(config, name) % devices:
             raise ValueError(f"{name}={getattr(config, name)} must be a multiple of the number of devices ({devices})")
@@ -156,32 +162,32 @@ def make_distributed_trainer(config: DDPGConfig, env: Env, **options: Any) -> Tr
     noise_factors = jnp.broadcast_to(jnp.asarray(config.collect_noise_factors or (1.0,), jnp.float32), (C,))
     lanes, same = parallel.P(parallel.LANES), parallel.P()
 
-    def copies_of(state: DDPGState, n: int) -> tuple:
+    def copies_of(state: OffPolicyState, n: int) -> tuple:
         """The global ``(actor, critic, obs stats)`` repeated ``n`` times: ``[n, ...]`` leaves."""
         fresh = (state.actor_params, state.critic_params, state.obs_stats)
         return jax.tree.map(lambda x: jnp.broadcast_to(x, (n,) + x.shape), fresh)
 
-    def init(key: jax.Array) -> DistributedDDPGState:
-        base = core.init_state(s, key)
-        fields = {name: getattr(base, name) for name in DDPGState.__dataclass_fields__}
+    def init(key: jax.Array) -> DistributedState:
+        base = trainer.init_state(s, key)
+        fields = {name: getattr(base, name) for name in OffPolicyState.__dataclass_fields__}
         if not C:
-            return DistributedDDPGState(**fields, collectors=None)
+            return DistributedState(**fields, collectors=None)
 
-        def start(keys: jax.Array, state: DDPGState) -> Collectors:
+        def start(keys: jax.Array, state: OffPolicyState) -> Collectors:
             env_state, noise_state = s.acting.reset(keys)
             actor, critic, stats = copies_of(state, local_collectors)
             return Collectors(env_state, noise_state, actor, critic, stats, jnp.zeros((local_collectors,), jnp.int32))
 
         keys = jax.random.split(jax.random.fold_in(key, 1), C * config.collect_lanes)
-        collectors = parallel.shard_lanes(start, s.mesh, (lanes, same), lanes)(keys, base)
-        return DistributedDDPGState(**fields, collectors=collectors)
+        collectors = parallel.shard_lanes(start, s.run.mesh, (lanes, same), lanes)(keys, base)
+        return DistributedState(**fields, collectors=collectors)
 
-    def fetch(state: DistributedDDPGState, ids: jax.Array) -> tuple[Collectors, jax.Array]:
+    def fetch(state: DistributedState, ids: jax.Array) -> tuple[Collectors, jax.Array]:
         """This device's collectors ``ids [c]`` after the fetches due at ``state.iteration``, and their staleness."""
         col, t = state.collectors, state.iteration
         due = (t - fetch_phases(ids, C, F)) % F == 0
-        actor, critic, stats = tree_where(due, copies_of(state, ids.shape[0]),
-                                          (col.actor_params, col.critic_params, col.obs_stats))
+        actor, critic, stats = lane_select(due, copies_of(state, ids.shape[0]),
+                                           (col.actor_params, col.critic_params, col.obs_stats))
         col = col.replace(actor_params=actor, critic_params=critic, obs_stats=stats,
                           fetched=jnp.where(due, t, col.fetched))
         return col, t - col.fetched
@@ -217,10 +223,10 @@ def make_distributed_trainer(config: DDPGConfig, env: Env, **options: Any) -> Tr
 
         return policy
 
-    def iteration(state: DistributedDDPGState, ids: dict[str, jax.Array]) -> tuple[DistributedDDPGState, tuple]:
+    def iteration(state: DistributedState, ids: dict[str, jax.Array]) -> tuple[DistributedState, tuple]:
         key, k_act, k_learn = jax.random.split(state.key, 3)
-        factor = core.noise_factor(config, state.iteration)
-        uniform = core.warming_up(config, state)
+        factor = trainer.noise_factor(config, state.iteration)
+        uniform = trainer.warming_up(config, state)
         policy = s.acting.policy(ids["lanes"], state.actor_params, state.obs_stats, factor, uniform)
         if C:
             # Both kinds of worker step as one batch of lanes (one env step per time step, not
@@ -228,7 +234,7 @@ def make_distributed_trainer(config: DDPGConfig, env: Env, **options: Any) -> Tr
             col, staleness = fetch(state, ids["collectors"])
             factors = noise_factors[ids["collectors"]]
             factors = factors if factor is None else factors * factor
-            n = s.local_lanes
+            n = s.run.local_lanes
             both = both_policy(policy, group_policy(ids["collect_lanes"], col, factors, uniform), n)
             env_state, noise_state = _concat((state.env_state, state.noise_state), (col.env_state, col.noise_state))
             both_got = s.acting.collect(k_act, jnp.concatenate([ids["lanes"], ids["collect_lanes"]]), both,
@@ -247,19 +253,19 @@ def make_distributed_trainer(config: DDPGConfig, env: Env, **options: Any) -> Tr
             rows, prio, mask = _concat((rows, prio, mask), (col_rows, col_prio, col_mask))
             state = state.replace(collectors=col.replace(env_state=col_got.env_state, noise_state=col_got.noise_state))
             extra = {"episodes": col_got.sums, "staleness": parallel.all_gather(staleness)}
-        state = core.store(s, state, rows, mask, prio)
+        state = trainer.store(s, state, rows, mask, prio)
         state, sums, count = s.learner.learn(state, k_learn, s.updates_per_iteration, worker_shards(ids["workers"]))
         state = state.replace(key=key, iteration=state.iteration + 1)
         return state, (sums, count, got.sums, extra)
 
-    def chunk_fn(state: DistributedDDPGState) -> tuple[DistributedDDPGState, Metrics]:
+    def chunk_fn(state: DistributedState) -> tuple[DistributedState, Metrics]:
         ids = {
-            "lanes": parallel.global_lane_ids(s.local_lanes),
+            "lanes": parallel.global_lane_ids(s.run.local_lanes),
             "workers": parallel.global_lane_ids(local_workers),
             "collectors": parallel.global_lane_ids(local_collectors),
             "collect_lanes": config.num_envs + parallel.global_lane_ids(local_collectors * config.collect_lanes),
         }
-        state, metrics, extra = core.run_chunk(s, state, lambda st: iteration(st, ids))
+        state, metrics, extra = trainer.run_chunk(s, state, lambda st: iteration(st, ids))
         if C:
             metrics.update(core.episode_means(jax.tree.map(jnp.sum, extra["episodes"]), "collect_"))
             staleness = extra["staleness"].astype(jnp.float32)  # [chunk, C]
@@ -267,5 +273,5 @@ def make_distributed_trainer(config: DDPGConfig, env: Env, **options: Any) -> Tr
             metrics["staleness_max"] = jnp.max(staleness)
         return state, metrics
 
-    specs = core.state_specs(DistributedDDPGState, collectors=lanes if C else None)
-    return core.make_trainer_of(s, init, chunk_fn, specs)
+    specs = trainer.state_specs(DistributedState, collectors=lanes if C else None)
+    return s.run.trainer(init, s.run.shard(chunk_fn, specs), functools.partial(trainer.greedy_policy, s))

@@ -1,4 +1,4 @@
-"""Imitation pre-training of the DDPG/TD3 actor (thesis §6.1.2, SPEC A10).
+"""Imitation pre-training of an off-policy actor (DDPG, TD3, SAC; thesis §6.1.2).
 
 For the first ``config.pretrain_iterations`` iterations of a run:
 
@@ -12,11 +12,11 @@ For the first ``config.pretrain_iterations`` iterations of a run:
 * the transitions go into the replay and the critic(s) learn from them as in DDPG, the target
   networks following the imitating actor (``Learner.learn(..., actor_on=False)``).
 
-Then the run continues as plain DDPG or TD3 from those weights; with ``imitation_weight`` > 0 the
+Then the run continues as plain DDPG, TD3 or SAC from those weights; with ``imitation_weight`` > 0 the
 expert goes on labelling the visited states and the actor stays anchored to its labels: with
 ``imitation_anchor='steps'`` it keeps its imitation updates, their Adam steps scaled by that weight
 (a behaviour-cloning anchor between the DDPG updates); with ``'loss'`` the updates stop and the
-DDPG actor loss takes a behaviour-cloning term on the memory instead (:attr:`Imitation.anchor`,
+actor loss takes a behaviour-cloning term on the memory instead (:attr:`Imitation.anchor`,
 TD3+BC's objective).  The memory and the imitation optimiser are part of the training state, so a
 resumed run continues exactly.
 """
@@ -32,7 +32,7 @@ import optax
 from brax.envs.base import Env, State
 
 from envs_mjx.config import ConfigError
-from jaxrl_robot.agents.ddpg.config import DDPGConfig
+from jaxrl_robot.agents.off_policy.config import OffPolicyConfig
 from jaxrl_robot.imitation import expert_of, imitation_loss, mix_teacher, teacher_share
 from jaxrl_robot.replay import make_uniform_replay
 from jaxrl_robot.types import RunningStats
@@ -68,7 +68,7 @@ class Imitation(NamedTuple):
         otherwise changes nothing (NaN loss when no update was taken).
       anchor: with ``imitation_anchor='loss'`` and ``imitation_weight`` > 0, ``(key, actor params, obs
         stats, memory) -> []``: the imitation loss of the actor on a mini-batch of ``imitation_batch``
-        pairs drawn from the memory with ``key``, the term the DDPG actor loss adds (else None).
+        pairs drawn from the memory with ``key``, the term the actor loss adds (else None).
     """
 
     iterations: int
@@ -80,9 +80,11 @@ class Imitation(NamedTuple):
 
 
 def make_imitation(
-    config: DDPGConfig, env: Env, actor: Any, norm: Callable[[RunningStats, jax.Array], jax.Array]
+    config: OffPolicyConfig, env: Env, act: Callable[[Any, jax.Array], jax.Array],
+    norm: Callable[[RunningStats, jax.Array], jax.Array],
 ) -> Imitation | None:
-    """The :class:`Imitation` of ``config`` (None when ``config.pretrain == 'none'``).
+    """The :class:`Imitation` of ``config`` (None when ``config.pretrain == 'none'``); ``act(params, x)``:
+    the actor's deterministic action, which imitates.
 
     Raises:
       ConfigError: ``pretrain='imitation'`` on an env without ``expert``.
@@ -125,7 +127,7 @@ def make_imitation(
     def demo_loss(key: jax.Array, params: Any, stats: RunningStats, buf: Any) -> jax.Array:
         """The actor's imitation loss on ``imitation_batch`` pairs drawn from ``buf`` with ``key``."""
         batch = memory.sample(key, buf).experience
-        mean = actor.apply(params, norm(stats, batch.obs))
+        mean = act(params, norm(stats, batch.obs))
         ones = jnp.ones(batch.obs.shape[:1], jnp.float32)
         return imitation_loss(mean, batch.action, ones, jnp.asarray(ones.shape[0], jnp.float32))
 

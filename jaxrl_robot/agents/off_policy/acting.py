@@ -1,6 +1,7 @@
-"""DDPG acting: lanes that explore with ``a = μ(s) + ω`` and record transitions (Algorithm 1, lines 5–8).
+"""Off-policy acting: lanes that explore with ``a = μ(s) + ω`` (or a stochastic policy's draw) and record
+transitions (Algorithm 1, lines 5–8).
 
->>> acting = make_acting(config, env, actor, noise, her, episode_length)
+>>> acting = make_acting(config, env, act, noise, her, episode_length)
 >>> policy = acting.policy(lane_ids, params, obs_stats, factor)        # this device's lanes [b]
 >>> got = acting.collect(key, lane_ids, policy, env_state, noise_state)
 >>> flat, mask = acting.gather(got.rows, got.mask)                     # every device's rows
@@ -35,14 +36,14 @@ from brax.envs.base import Env, State
 
 from envs_mjx.base import EpisodeWrapper, wrap_for_training
 from jaxrl_robot import parallel
-from jaxrl_robot.acting import per_lane_keys
-from jaxrl_robot.agents.ddpg.config import DDPGConfig
+from jaxrl_robot.acting import lane_select, per_lane_keys
+from jaxrl_robot.agents.off_policy.config import OffPolicyConfig
 from jaxrl_robot.networks import normalize
 from jaxrl_robot.noise import Noise, NoiseState, make_noise
-from jaxrl_robot.replay import GoalEpisode, Her, Transition
-from jaxrl_robot.types import RunningStats
+from jaxrl_robot.replay import GoalEpisode, Her
+from jaxrl_robot.types import RunningStats, Transition
 
-__all__ = ["Acting", "Collected", "LanePolicy", "make_acting", "make_noise_for", "tree_where"]
+__all__ = ["Acting", "Collected", "LanePolicy", "make_acting", "make_noise_for"]
 
 LanePolicy = Callable[[jax.Array, jax.Array, NoiseState], tuple[jax.Array, NoiseState]]
 """``(key, obs [b, O], noise [b, A]) -> (action [b, A], noise)`` for one device's lanes."""
@@ -72,17 +73,18 @@ class Collected(NamedTuple):
 
 
 class Acting(NamedTuple):
-    """Acting functions of one DDPG configuration (see the module docstring).
+    """Acting functions of one off-policy configuration (see the module docstring).
 
     Attributes:
       reset: ``keys [b] -> (State [b], NoiseState [b, A])`` initial lanes.
       policy: ``(lane_ids [b], actor params, obs stats, factor or None, uniform=None) -> LanePolicy``:
-        ``clip(μ(x) + f·ω, −1, 1)`` (Eq. 3.7) with ``x`` the normalised observation; uniform random
-        actions in [−1, 1] while ``uniform`` (``[]`` bool, :func:`~jaxrl_robot.agents.ddpg.core.warming_up`) holds.
+        ``clip(μ(x) + f·ω, −1, 1)`` (Eq. 3.7) with ``x`` the normalised observation, or the stochastic
+        policy's draw (``sample``); uniform random actions in [−1, 1] while ``uniform`` (``[]`` bool,
+        :func:`~jaxrl_robot.agents.off_policy.trainer.warming_up`) holds.
       explore: the same as a function ``(key, lane_ids, params, stats, obs, noise, factor, uniform=None)``.
       collect: ``(key, lane_ids [b], policy, State [b], NoiseState [b], teacher=None, split=None)
         -> Collected``; ``teacher(key, State [b], action [b, A]) -> (executed action, label)``
-        ('steps' only, the imitation stage of :mod:`~jaxrl_robot.agents.ddpg.imitation`) labels
+        ('steps' only, the imitation stage of :mod:`~jaxrl_robot.agents.off_policy.imitation`) labels
         every visited state.  ``split``: the episode sums come as ``[2]``, lanes ``[:split]`` and
         ``[split:]`` apart (two kinds of worker stepped as one batch: one env step, not two).
       gather: ``(rows [b, N], mask [b, N] | None) -> (rows [R], mask [R] | None)`` with
@@ -103,7 +105,7 @@ class Acting(NamedTuple):
     fresh_noise: Callable[[int], NoiseState]
 
 
-def make_noise_for(config: DDPGConfig, action_size: int) -> Noise:
+def make_noise_for(config: OffPolicyConfig, action_size: int) -> Noise:
     """The configured exploration noise (``config.noise``) for ``action_size`` dimensions (``ConfigError``
     naming a noise field with neither 1 nor ``action_size`` values)."""
     config.check_action_size(action_size)
@@ -113,43 +115,47 @@ def make_noise_for(config: DDPGConfig, action_size: int) -> Noise:
     return make_noise("gaussian", action_size, scale=config.noise_scale, mean=config.noise_mean)
 
 
-def tree_where(cond: jax.Array, a: Any, b: Any) -> Any:
-    """Per-lane select ``cond [n] ? a : b`` over pytrees with a leading axis ``[n]``."""
-    return jax.tree.map(lambda x, y: jnp.where(cond.reshape(cond.shape + (1,) * (x.ndim - 1)), x, y), a, b)
-
-
 def _lane_major(tree: Any) -> Any:
     """``[T, b, ...] -> [b, T, ...]``."""
     return jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), tree)
 
 
 def make_acting(
-    config: DDPGConfig, env: Env, actor: Any, noise: Noise, her: Her | None, episode_length: int
+    config: OffPolicyConfig, env: Env, act: Callable[[Any, jax.Array], jax.Array], noise: Noise, her: Her | None,
+    episode_length: int, sample: Callable[[jax.Array, Any, jax.Array], jax.Array] | None = None,
+    batched_env: Env | None = None,
 ) -> Acting:
-    """The :class:`Acting` of ``config`` for the unbatched ``env`` (``actor``: a flax module)."""
+    """The :class:`Acting` of ``config`` for the unbatched ``env``.
+
+    ``act(params, x) -> μ(x)``: the deterministic policy.  ``sample(keys [b], params, x [b, O]) -> a [b, A]``:
+    a stochastic policy that explores by itself (no noise added; the noise processes are left as they are),
+    or None.  ``batched_env``: the env wrapped by ``wrap_for_training`` with the time limit ``episode_length``
+    for the 'steps' schedule (built here if None).
+    """
     T = episode_length
     fail_bonus = config.gamma * config.failure_value  # stored into a failing step's reward (terminal: no bootstrap)
     if config.schedule == "episodes":
         lane_env, batched_env = EpisodeWrapper(env, T), None
     else:
-        lane_env, batched_env = None, wrap_for_training(env, episode_length=T)
+        lane_env, batched_env = None, batched_env or wrap_for_training(env, episode_length=T)
 
     def norm(stats: RunningStats, obs: jax.Array) -> jax.Array:
         return normalize(stats if config.normalize_obs else None, obs)
-
-    def act(params: Any, obs: jax.Array) -> jax.Array:
-        return actor.apply(params, obs)
 
     def explore(
         key: jax.Array, lane_ids: jax.Array, params: Any, stats: RunningStats, obs: jax.Array, nstate: NoiseState,
         factor: jax.Array | None, uniform: jax.Array | None = None,
     ) -> tuple[jax.Array, NoiseState]:
-        """``a = clip(μ(s) + f·ω, -1, 1)`` for the lanes ``lane_ids [b]``: raw ``[b, O] -> [b, A]``;
-        where ``uniform`` (a ``[]`` bool) is set, ``a ~ U[-1, 1]`` instead (the noise still advances)."""
-        eps, nstate = jax.vmap(noise.sample)(per_lane_keys(key, lane_ids), nstate)
-        if factor is not None:
-            eps = factor * eps
-        a = jnp.clip(act(params, norm(stats, obs)) + eps, -1.0, 1.0)
+        """``a = clip(μ(s) + f·ω, -1, 1)`` (or ``sample``'s draw) for the lanes ``lane_ids [b]``: raw
+        ``[b, O] -> [b, A]``; where ``uniform`` (a ``[]`` bool) is set, ``a ~ U[-1, 1]`` instead (the noise
+        still advances)."""
+        if sample is not None:
+            a = sample(per_lane_keys(jax.random.fold_in(key, 2), lane_ids), params, norm(stats, obs))
+        else:
+            eps, nstate = jax.vmap(noise.sample)(per_lane_keys(key, lane_ids), nstate)
+            if factor is not None:
+                eps = factor * eps
+            a = jnp.clip(act(params, norm(stats, obs)) + eps, -1.0, 1.0)
         if uniform is not None:
             keys = per_lane_keys(jax.random.fold_in(key, 1), lane_ids)
             u = jax.vmap(lambda k: jax.random.uniform(k, a.shape[1:], a.dtype, -1.0, 1.0))(keys)
@@ -206,7 +212,7 @@ def make_acting(
             done = ns.done.astype(jnp.float32)
             term = terminal(ns)
             alive = 1.0 - finished
-            row = {"obs": s.obs, "action": a, "reward": ns.reward, "next_obs": ns.obs, "terminated": term,
+            row = {"obs": s.obs, "action": a, "reward": ns.reward, "next_obs": ns.obs, "termination": term,
                    "failed": failed(ns, term), "valid": alive, "ending": alive * done, "metrics": lane_metrics(ns, b)}
             if her is not None:
                 row["achieved"] = jax.vmap(env.achieved_goal)(ns)
@@ -224,12 +230,12 @@ def make_acting(
         lanes = _lane_major(traj)  # [b, T, ...]
         if her is None:
             reward = lanes["reward"] + fail_bonus * lanes["failed"]
-            rows = Transition(lanes["obs"], lanes["action"], reward, lanes["next_obs"], lanes["terminated"])
+            rows = Transition(lanes["obs"], lanes["action"], reward, lanes["next_obs"], lanes["termination"])
             return Collected(final, nstate, rows, lanes["valid"] > 0, sums)
         achieved0 = jax.vmap(env.achieved_goal)(state0)
         episodes = GoalEpisode(
             obs=lanes["obs"], action=lanes["action"], reward=lanes["reward"], next_obs=lanes["next_obs"],
-            terminated=lanes["terminated"], failed=lanes["failed"], valid=lanes["valid"],
+            termination=lanes["termination"], failed=lanes["failed"], valid=lanes["valid"],
             achieved=jnp.concatenate([achieved0[:, None], lanes["achieved"]], axis=1),
             ee_pos=jnp.concatenate([state0.info["ee_pos"][:, None], lanes["ee_pos"]], axis=1),
             goal=jax.vmap(env.desired_goal)(state0),
@@ -257,7 +263,7 @@ def make_acting(
             done = ns.done.astype(jnp.float32)
             term = terminal(ns)
             tr = Transition(s.obs, a, ns.reward + fail_bonus * failed(ns, term), ns.info["final_obs"], term)
-            nstate = tree_where(done > 0, fresh_noise(b), nstate)  # new episode, new noise process
+            nstate = lane_select(done > 0, fresh_noise(b), nstate)  # new episode, new noise process
             ep = {"episodes": red(done), "episode_return": red(done * ns.info["episode_return"]),
                   "episode_length": red(done * ns.info["episode_length"])}
             for name, v in lane_metrics(ns, b).items():

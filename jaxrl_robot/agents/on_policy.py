@@ -1,72 +1,50 @@
-"""The pieces every on-policy actor-critic trainer (PPO, A2C / A3C) shares.
+"""The on-policy actor-critic family (PPO, A2C / A3C): what its trainers share beyond
+:mod:`~jaxrl_robot.agents.core`.
 
 * :class:`ActorCriticConfig` — the hyper-parameters such an agent always has (run size, lanes,
   Gaussian actor and critic, Adam, γ, episode length) with their validation; an algorithm's
   config subclasses it, adds its own fields and extends ``validate``.
-* :func:`make_actor_critic` — the Gaussian actor (σ broadcast to the action size) and critic.
-* :func:`make_optimizer`, :func:`apply_gradients` — Adam (clipped, optionally annealed) and one step
-  (every algorithm's optimiser, DDPG's included); :func:`lr_end_factor` of ``lr_schedule``.
-* :func:`setup` → :class:`Setup` — the shell of ``make_trainer``: the config validated, lanes per
-  device, the env wrapped for training, iteration and chunk counts, the initial env states
-  (:meth:`Setup.reset`) and the :class:`~jaxrl_robot.types.Trainer` (:meth:`Setup.trainer`).
-* :class:`RunState` — the fields every such train state has (lanes' env states, key, iteration
-  count); an algorithm's state subclasses it and adds its networks and optimisers.
-* :func:`init_actor_critic`, :func:`sample_lanes`, :func:`cast_like`, :func:`state_specs`.
+* :func:`make_actor_critic` — the Gaussian actor (σ broadcast to the action size) and critic;
+  :func:`init_actor_critic`, :func:`sample_lanes`; :func:`lr_end_factor` of ``lr_schedule``.
 * Episode-parameter schedules: :func:`schedule_tables`, :func:`schedule_values`,
   :func:`initial_env_params`, :func:`apply_schedule`.
-* Metrics of a chunk: :func:`episode_sums` per iteration, :func:`chunk_metrics` over the chunk.
-* :func:`make_train_for` — an algorithm's ``make_train(config, env) -> train(key)`` from its
-  ``make_trainer``: the whole run under ``lax.scan``.
+* :func:`episode_sums` per iteration, for :func:`~jaxrl_robot.agents.core.chunk_metrics` at the end of a chunk.
 
-A trainer built from these runs its lanes inside ``parallel.shard_lanes``: functions that use
-``parallel.pmean`` / ``psum`` are called there.
+The shell of a trainer (``core.setup``, ``core.RunState``, ``core.state_specs``, the optimiser,
+``core.make_train_for``) is :mod:`~jaxrl_robot.agents.core`.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, NamedTuple, Self
+from typing import Any, Self
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 from brax.envs.base import Env, State
-from flax import struct
 
-from envs_mjx.base import default_episode_length, wrap_for_training
 from envs_mjx.config import ConfigError, check_choice, check_range
-from jaxrl_robot import parallel
 from jaxrl_robot.acting import per_lane_keys
+from jaxrl_robot.agents.core import check_counts
 from jaxrl_robot.networks import ACTIVATIONS, BN_MODES, Critic, GaussianActor, gaussian_sample
-from jaxrl_robot.types import Metrics, Policy, Trainer, Transition
+from jaxrl_robot.types import Transition
 
 __all__ = [
     "LR_SCHEDULES",
     "ActorCriticConfig",
-    "RunState",
     "action_sigma",
-    "Setup",
-    "apply_gradients",
     "apply_schedule",
-    "cast_like",
-    "check_counts",
-    "chunk_metrics",
     "episode_sums",
     "init_actor_critic",
     "initial_env_params",
-    "make_actor_critic",
     "lr_end_factor",
-    "make_optimizer",
-    "make_train_for",
+    "make_actor_critic",
     "sample_lanes",
     "schedule_tables",
     "schedule_values",
-    "setup",
-    "state_specs",
 ]
 
 LR_SCHEDULES = ("constant", "linear")
@@ -74,15 +52,6 @@ LR_SCHEDULES = ("constant", "linear")
 
 
 # ---- configuration ----------------------------------------------------------------------------
-def check_counts(config: Any, *names: str) -> None:
-    """Raise ``ConfigError`` unless each field in ``names`` is an integer ``>= 1``."""
-    for name in names:
-        value = getattr(config, name)
-        check_range(name, value, 1)
-        if int(value) != value:
-            raise ConfigError(f"{name}={value!r} must be an integer")
-
-
 @dataclass(frozen=True)
 class ActorCriticConfig:
     """Hyper-parameters shared by the actor-critic agents (defaults: the thesis's arm settings, except
@@ -186,7 +155,7 @@ class ActorCriticConfig:
         return dataclasses.replace(self, **changes)
 
 
-# ---- networks and optimiser -------------------------------------------------------------------
+# ---- networks -------------------------------------------------------------------------------------
 def make_actor_critic(
     config: ActorCriticConfig, action_size: int, bn_axis_name: str | None = None, squash: bool = True
 ) -> tuple[GaussianActor, Critic]:
@@ -227,24 +196,6 @@ def lr_end_factor(config: ActorCriticConfig) -> float:
     return 0.0 if config.lr_schedule == "linear" else 1.0
 
 
-def make_optimizer(
-    lr: float, max_grad_norm: float, end_factor: float = 1.0, decay_steps: int = 1
-) -> optax.GradientTransformation:
-    """Adam with step size ``lr`` falling linearly to ``end_factor · lr`` over ``decay_steps`` of its own
-    steps and then held (constant when ``end_factor`` is 1), after clipping the gradient to the
-    global norm ``max_grad_norm`` when it is positive."""
-    if end_factor < 1.0:
-        lr = optax.linear_schedule(lr, lr * end_factor, max(int(decay_steps), 1))
-    adam = optax.adam(lr)
-    return optax.chain(optax.clip_by_global_norm(max_grad_norm), adam) if max_grad_norm > 0 else adam
-
-
-def apply_gradients(tx: optax.GradientTransformation, grads: Any, opt_state: Any, params: Any) -> tuple[Any, Any]:
-    """One optimiser step: ``(new params, new opt_state)``."""
-    updates, opt_state = tx.update(grads, opt_state, params)
-    return optax.apply_updates(params, updates), opt_state
-
-
 def init_actor_critic(
     key_actor: jax.Array, key_critic: jax.Array, actor: GaussianActor, critic: Critic, obs_size: int
 ) -> tuple[Any, Any, Any]:
@@ -257,118 +208,6 @@ def init_actor_critic(
 def sample_lanes(key: jax.Array, lane_ids: jax.Array, mean: jax.Array, log_std: jax.Array) -> jax.Array:
     """Gaussian actions ``[B, A]``, lane ``i`` drawing with ``fold_in(key, lane_ids[i])``."""
     return jax.vmap(gaussian_sample)(per_lane_keys(key, lane_ids), mean, log_std)
-
-
-# ---- the shell of make_trainer ----------------------------------------------------------------
-class Setup(NamedTuple):
-    """What a trainer derives from its config, env and mesh before it builds its functions.
-
-    Attributes:
-      mesh: device mesh the lanes are split over (mesh axis ``parallel.LANES``).
-      env: the env wrapped by ``envs_mjx.wrap_for_training`` (lanes, time limit, true auto-reset).
-      obs_size, action_size: of the unwrapped env.
-      num_envs: K, lanes of all devices; local_lanes: lanes of one device.
-      steps_per_iteration: env step slots of one iteration, ``K · N``.
-      iterations_per_update: iterations per ``update`` call (one chunk).
-      num_updates: chunks of the whole run, ``ceil(total_iterations / iterations_per_update)``.
-    """
-
-    mesh: jax.sharding.Mesh
-    env: Env
-    obs_size: int
-    action_size: int
-    num_envs: int
-    local_lanes: int
-    steps_per_iteration: int
-    iterations_per_update: int
-    num_updates: int
-
-    def reset(self, key: jax.Array, params: Callable[[], Any] | None = None) -> State:
-        """Env states ``[K]`` of ``split(key, K)``, lanes split over the mesh; ``params`` builds the
-        episode parameters (called inside the lanes' ``shard_map``; None: the env's defaults)."""
-
-        def reset_lanes(keys: jax.Array) -> State:
-            return self.env.reset(keys, None if params is None else params())
-
-        lanes = parallel.P(parallel.LANES)
-        return parallel.shard_lanes(reset_lanes, self.mesh, lanes, lanes)(jax.random.split(key, self.num_envs))
-
-    def trainer(
-        self, init: Callable, update: Callable, policy: Callable[[Any], Policy], sample_policy: Callable | None = None
-    ) -> Trainer:
-        """The :class:`~jaxrl_robot.types.Trainer` of these functions with this run's counts."""
-        steps = self.steps_per_iteration * self.iterations_per_update
-        return Trainer(init, update, policy, self.num_updates, steps, sample_policy)
-
-
-def setup(
-    config: ActorCriticConfig,
-    env: Env,
-    mesh: jax.sharding.Mesh | None = None,
-    iterations_per_update: int = 1,
-    **wrap_options: Any,
-) -> Setup:
-    """Validate ``config`` and derive the :class:`Setup` of a run (raises ``ConfigError``).
-
-    Args:
-      config: the trainer's hyper-parameters (validated here).
-      env: an *unbatched* ``brax.envs.base.Env``; wrapped with ``envs_mjx.wrap_for_training``
-        with the time limit ``config.episode_length`` (0: ``envs_mjx.base.default_episode_length(env)``:
-        ``env.episode_length``, else 1000).
-      mesh: device mesh from ``parallel.lane_mesh`` (default: all devices).
-      iterations_per_update: iterations per ``update`` call (one chunk), ``>= 1``.
-      wrap_options: further keywords of ``wrap_for_training`` (``reset_refresh``, ``reset_group``,
-        ``lane_group``; a ``lane_group`` must divide the lanes per device).
-    """
-    config.validate()
-    if iterations_per_update < 1:
-        raise ConfigError(f"iterations_per_update={iterations_per_update} must be >= 1")
-    mesh = parallel.lane_mesh() if mesh is None else mesh
-    local_lanes = parallel.local_lane_count(config.num_envs, mesh)
-    episode_length = config.episode_length or default_episode_length(env)
-    lane_group = wrap_options.get("lane_group", 0)
-    if lane_group and local_lanes % lane_group:
-        raise ConfigError(f"lane_group={lane_group} must divide the lanes per device ({local_lanes})")
-    return Setup(
-        mesh=mesh,
-        env=wrap_for_training(env, episode_length=int(episode_length), **wrap_options),
-        obs_size=int(env.observation_size),
-        action_size=int(env.action_size),
-        num_envs=config.num_envs,
-        local_lanes=local_lanes,
-        steps_per_iteration=config.num_envs * config.unroll_length,
-        iterations_per_update=iterations_per_update,
-        num_updates=math.ceil(config.total_iterations / iterations_per_update),
-    )
-
-
-@struct.dataclass(kw_only=True)
-class RunState:
-    """The part of a train state that every trainer built on :func:`setup` has; an algorithm's state
-    (``PPOState``, ``A2CState``, ``A3CState``) subclasses it and adds its own fields, which come
-    first in the constructor's positional order (these three are keyword-only).
-
-    Attributes:
-      env_state: ``State [K]`` of the wrapped env (lanes split over devices).
-      key: PRNG key of the run.
-      iteration: ``[]`` int32 iterations (A2C / A3C: rounds) done.
-    """
-
-    env_state: State
-    key: jax.Array
-    iteration: jax.Array
-
-
-def state_specs(cls: type, **specs: Any) -> Any:
-    """A ``cls`` (a ``flax.struct.dataclass``) of partition specs: ``specs`` by field, every
-    other field replicated (``parallel.P()``), as ``shard_lanes`` takes them."""
-    return cls(**{f.name: specs.get(f.name, parallel.P()) for f in dataclasses.fields(cls)})
-
-
-def cast_like(tree: Any, reference: Any) -> Any:
-    """``tree`` with every leaf cast to the dtype of ``reference``'s leaf (drops weak types, so a
-    jitted chunk whose state passes through an env never retraces)."""
-    return jax.tree.map(lambda x, r: jnp.asarray(x).astype(r.dtype), tree, reference)
 
 
 # ---- episode-parameter schedules --------------------------------------------------------------
@@ -437,42 +276,3 @@ def episode_sums(traj: Transition) -> dict[str, jax.Array]:
         if v.shape == done.shape:
             sums[k] = jnp.sum(jnp.where(done > 0, v, 0.0))
     return sums
-
-
-def chunk_metrics(metrics: Metrics, sums: dict[str, jax.Array]) -> Metrics:
-    """Scalar metrics of a chunk from per-iteration values ``[I]`` (inside ``shard_lanes``).
-
-    ``metrics``: averaged over the chunk's iterations.  ``sums``: :func:`episode_sums` of each
-    iteration, totalled over the chunk and the devices; every episode metric becomes its mean
-    over the finished episodes (NaN where none finished), ``episodes`` their number.
-    """
-    out = {k: jnp.mean(v) for k, v in metrics.items()}
-    sums = parallel.psum(jax.tree.map(lambda x: jnp.sum(x, axis=0), sums))
-    episodes = sums.pop("episodes")
-    out["episodes"] = episodes
-    for k, v in sums.items():
-        out[k] = jnp.where(episodes > 0, v / jnp.maximum(episodes, 1.0), jnp.nan)
-    return out
-
-
-def make_train_for(make_trainer: Callable[..., Trainer]) -> Callable[..., Callable[[jax.Array], tuple[Any, Metrics]]]:
-    """The ``make_train`` of a trainer factory: ``make_train(config, env, **options) -> train``.
-
-    ``train(key) -> (final state, metrics [num_updates])`` runs ``init`` and then every ``update``
-    of ``make_trainer(config, env, **options)`` (keywords such as ``mesh`` and
-    ``iterations_per_update``) under ``lax.scan``: the whole run, pure and jittable;
-    ``jax.jit(jax.vmap(train))(keys)`` trains one agent per key.
-    """
-
-    def make_train(config: Any, env: Env, **options: Any) -> Callable[[jax.Array], tuple[Any, Metrics]]:
-        trainer = make_trainer(config, env, **options)
-
-        def train(key: jax.Array) -> tuple[Any, Metrics]:
-            state = trainer.init(key)
-            return jax.lax.scan(lambda s, _: trainer.update(s), state, None, length=trainer.num_updates)
-
-        return train
-
-    make_train.__module__, make_train.__qualname__ = make_trainer.__module__, "make_train"
-    make_train.__doc__ = make_train_for.__doc__
-    return make_train
