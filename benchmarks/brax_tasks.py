@@ -10,7 +10,8 @@ return at equal env steps, wall time, steps/s.
     python -m benchmarks.brax_tasks --tasks hopper --ours segments=true   # brax's update (advantage_segment)
     python -m benchmarks.brax_tasks --tasks reacher --no-brax --devices 2 --seed-map loop   # each seed on 2 GPUs
 
-Off-policy (``--algo td3`` or ``ddpg``): the tasks brax trains with SAC (:data:`train.presets.BRAX_SAC`,
+Off-policy (``--algo td3``, ``ddpg`` or ``sac``; SAC takes DDPG's config, :func:`train.sac.sac_config`): the
+tasks brax trains with SAC (:data:`train.presets.BRAX_SAC`,
 hopper and walker2d), brax's ``sac.train`` with the row as it is, ours through
 :func:`train.presets.brax_sac_ddpg_config`: the same envs, memory and networks, with TD3's own settings
 (mini-batches of 256, γ 0.99, unscaled rewards) and two updates per env step on hopper and walker2d
@@ -89,7 +90,7 @@ from benchmarks.train_throughput import RESULTS, device_label
 from envs_mjx.base import ActionRepeatWrapper
 from envs_mjx.config import ConfigError, apply_overrides
 from jaxrl_robot import parallel, plots
-from jaxrl_robot.agents import ddpg, ppo
+from jaxrl_robot.agents import ddpg, ppo, sac
 from jaxrl_robot.evaluation import run_test_episodes, two_policies
 from jaxrl_robot.types import Trainer
 from train.presets import (
@@ -103,9 +104,11 @@ from train.presets import (
     playground_task,
     ppo_config_of_row,
 )
+from train.sac import sac_config
 from train.td3 import TD3_SETTINGS
 
-ALGOS = {"ppo": ("PPO", "ppo", BRAX_PPO), "td3": ("TD3", "sac", BRAX_SAC), "ddpg": ("DDPG", "sac", BRAX_SAC)}
+ALGOS = {"ppo": ("PPO", "ppo", BRAX_PPO), "td3": ("TD3", "sac", BRAX_SAC), "ddpg": ("DDPG", "sac", BRAX_SAC),
+         "sac": ("SAC", "sac", BRAX_SAC)}
 """``--algo``: (our algorithm's name, brax's peer, the table of tasks and settings)."""
 
 
@@ -185,7 +188,7 @@ def our_config(algo: str, task: str, action_size: int, row: dict[str, float], st
             config = ddpg_config_of_sac_row(row, TD3_OWN if own else None)
         else:
             config = brax_sac_ddpg_config(task, own, tuned, **row)
-        config = config.replace(**TD3_SETTINGS) if algo == "td3" else config
+        config = config.replace(**TD3_SETTINGS) if algo == "td3" else sac_config(config) if algo == "sac" else config
     return apply_overrides(config.replace(total_steps=steps), overrides, type(config).__name__).validate()
 
 
@@ -199,7 +202,8 @@ def our_trainer(algo: str, task: str, env: Any, row: dict[str, float], steps: in
     if algo == "ppo":
         return ppo.make_trainer(config, env, mesh=mesh), config.episode_length
     every = update_chunk(config.iterations)
-    return ddpg.make_trainer(config, env, mesh=mesh, iterations_per_update=every), config.episode_length
+    make_trainer = sac.make_trainer if algo == "sac" else ddpg.make_trainer
+    return make_trainer(config, env, mesh=mesh, iterations_per_update=every), config.episode_length
 
 
 def update_chunk(iterations: int, calls: int = 20) -> int:
@@ -491,8 +495,8 @@ def figure(task: dict[str, Any], out_dir: str) -> str | None:
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--algo", default="ppo", choices=list(ALGOS), help="ours: ppo (brax's PPO beside) or td3 / ddpg "
-                   "(brax's SAC beside)")  # fmt: skip
+    p.add_argument("--algo", default="ppo", choices=list(ALGOS), help="ours: ppo (brax's PPO beside) or td3 / ddpg / "
+                   "sac (brax's SAC beside)")  # fmt: skip
     p.add_argument("--tasks", nargs="+", default=None, metavar="TASK",
                    help=f"PPO: {', '.join(BRAX_PPO)} (default: all); TD3 / DDPG: {', '.join(BRAX_SAC)} (default: all)")
     p.add_argument("--seeds", type=positive, default=3)

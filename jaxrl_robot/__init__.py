@@ -8,10 +8,11 @@ __version__ = "0.1.0"
 
 import envs_mjx  # noqa: E402, F401  (first: it imports MJX quietly, before brax does)
 from jaxrl_robot import networks, noise, recurrent, replay  # noqa: E402
-from jaxrl_robot.agents import a2c, ddpg, ppo  # noqa: E402
+from jaxrl_robot.agents import a2c, ddpg, ppo, sac, td3  # noqa: E402
 from jaxrl_robot.agents.a2c import A2CConfig, A3CConfig  # noqa: E402
 from jaxrl_robot.agents.ddpg import DDPGConfig  # noqa: E402
 from jaxrl_robot.agents.ppo import PPOConfig  # noqa: E402
+from jaxrl_robot.agents.sac import SACConfig  # noqa: E402
 from jaxrl_robot.evaluation import run_test_episodes, summarize_episodes, tracking_error_sums  # noqa: E402
 from jaxrl_robot.networks import *  # noqa: E402, F403  (networks.__all__, listed once there)
 from jaxrl_robot.noise import make_gaussian_noise, make_ou_noise  # noqa: E402
@@ -50,6 +51,11 @@ __all__ = [
     # DDPG (thesis ch. 3): jaxrl_robot.ddpg.make_train(DDPGConfig(her="future"), env)
     "ddpg",
     "DDPGConfig",
+    # TD3 (thesis §6.2): jaxrl_robot.td3.make_train(jaxrl_robot.td3.td3_config(), env)
+    "td3",
+    # SAC: jaxrl_robot.sac.make_train(SACConfig(schedule="steps"), env)
+    "sac",
+    "SACConfig",
     # replay memories (§3.1-3.3) and exploration noise (Eq. 3.8); more in jaxrl_robot.replay / .noise
     "replay",
     "make_uniform_replay",

@@ -297,7 +297,7 @@ def brax_sac_task(env_name: str) -> str | None:
     return _brax_task_of(env_name, BRAX_SAC)
 
 
-PLAYGROUND_PEERS = {"ppo": "ppo", "ddpg": "sac", "td3": "sac"}
+PLAYGROUND_PEERS = {"ppo": "ppo", "ddpg": "sac", "td3": "sac", "sac": "sac"}
 """Our algorithm -> the brax trainer whose MuJoCo Playground settings its ``playground`` preset converts."""
 
 
@@ -385,8 +385,8 @@ def resolve_preset(name: str, env_name: str | None = None, algo: str = "ppo") ->
     :data:`BRAX_SAC`, ``playground`` for such a run on a ``playground:<Name>`` env with MuJoCo Playground's
     settings (:func:`playground_task`), else ``fast`` on an accelerator backend, else ``cpu``; other names
     unchanged (validated: ``brax`` and ``playground`` are PPO's, DDPG's and TD3's)."""
-    valid, table = {"ppo": (PPO_PRESETS, BRAX_PPO), "ddpg": (DDPG_PRESETS, BRAX_SAC),
-                    "td3": (DDPG_PRESETS, BRAX_SAC)}.get(algo, (PRESETS, {}))  # fmt: skip
+    valid, table = {"ppo": (PPO_PRESETS, BRAX_PPO), "ddpg": (DDPG_PRESETS, BRAX_SAC), "td3": (DDPG_PRESETS, BRAX_SAC),
+                    "sac": (DDPG_PRESETS, BRAX_SAC)}.get(algo, (PRESETS, {}))  # fmt: skip
     if name not in valid:
         raise ValueError(f"unknown preset {name!r}; valid presets: {', '.join(valid)}")
     if name == "auto":

@@ -1,0 +1,171 @@
+"""SAC as a member of the off-policy family: its networks, its temperature and its gradient steps.
+
+>>> trainer = make_trainer(SACConfig(schedule="steps", total_steps=100_000), env)   # any unbatched brax Env
+>>> state = jax.jit(trainer.init)(key)
+>>> state, metrics = jax.jit(trainer.update, donate_argnums=0)(state)
+>>> train = make_train(config, env)                                                  # or the whole run
+
+One update (after brax's ``sac/train.py``, with the critic step first as the family's loop takes it):
+the twin critics regress on ``y = r + γ (1 − d) (min_k Q'_k(s', a') − α log π(a'|s'))`` with ``a'``
+drawn from the policy (:func:`~jaxrl_robot.agents.sac.losses.soft_value`); then — every ``policy_delay``
+updates — the policy on ``mean (α log π(a|s) − min_k Q_k(s, a))`` with reparametrised draws ``a``, the
+temperature on ``mean α (−log π(a|s) − H̄)`` with the same draws (``learn_alpha``), and the target critics
+softly with ε.  The policy explores by sampling itself; evaluation and imitation use its mode
+``tanh(loc)``.  Schedules, replay (PER, HER), random start, imitation and the distributed workers are the
+family's (:mod:`jaxrl_robot.agents.off_policy`); α and its Adam state live in the state's ``extras``
+(:class:`SACExtras`), so a checkpoint resumes it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import optax
+from brax.envs.base import Env
+from flax import struct
+
+from jaxrl_robot.agents import core
+from jaxrl_robot.agents.off_policy import trainer
+from jaxrl_robot.agents.off_policy.learner import LearnerState, Update, Workers, critic_target
+from jaxrl_robot.agents.off_policy.losses import anchored_actor_loss, soft_update, twin_critic_loss
+from jaxrl_robot.agents.off_policy.networks import QCritic, critic_values, init_critics
+from jaxrl_robot.agents.sac.config import SACConfig
+from jaxrl_robot.agents.sac.losses import actor_loss, alpha_loss, gaussian_scale, soft_value, tanh_gaussian_sample
+from jaxrl_robot.agents.sac.networks import SACActor, mode
+from jaxrl_robot.types import Trainer, Transition
+
+__all__ = ["SACExtras", "make_member", "make_networks", "make_train", "make_trainer", "make_update"]
+
+
+@struct.dataclass
+class SACExtras:
+    """SAC's own learned quantities in the train state (``OffPolicyState.extras``).
+
+    Attributes:
+      log_alpha: ``[]`` log of the temperature α.
+      alpha_opt: its Adam state.
+    """
+
+    log_alpha: jax.Array
+    alpha_opt: Any
+
+
+def make_networks(config: SACConfig, action_size: int) -> tuple[SACActor, QCritic]:
+    """The tanh-Gaussian actor and the (twin) critic of the configured widths."""
+    actor = SACActor(action_size=action_size, hidden=tuple(config.actor_hidden))
+    return actor, QCritic(hidden=tuple(config.critic_hidden))
+
+
+def make_update(
+    config: SACConfig, actor: SACActor, critic: QCritic, txs: tuple[optax.GradientTransformation, ...],
+    target_entropy: float,
+) -> Update:
+    """SAC's gradient steps for the family's learner loop; ``txs = (actor, critic, temperature)`` optimisers."""
+    actor_tx, critic_tx, alpha_tx = txs
+    q_values = critic_values(critic, twin=True)
+
+    def draw(params: Any, obs: jax.Array, key: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """Reparametrised draws ``a [N, A]`` of the policy at ``obs [N, O]`` and their ``log π(a|s) [N]``."""
+        loc, raw = actor.apply(params, obs)
+        return tanh_gaussian_sample(key, loc, gaussian_scale(raw, config.min_std))
+
+    def alpha(ls: LearnerState) -> jax.Array:
+        return jnp.exp(ls.extras.log_alpha)
+
+    def critic_step(ls: LearnerState, tr: Transition, weights: jax.Array | None, key: jax.Array, workers: Workers):
+        next_a, next_log_prob = draw(ls.actor_params, tr.next_obs, jax.random.split(key, 3)[1])
+        next_v = soft_value(q_values(ls.target_critic_params, tr.next_obs, next_a), next_log_prob, alpha(ls))
+        y = critic_target(config, tr, next_v)
+        loss = lambda p: twin_critic_loss(q_values(p, tr.obs, tr.action), y, weights)  # noqa: E731
+        (closs, td), grads = jax.value_and_grad(loss, has_aux=True)(ls.critic_params)
+        closs, grads = workers.mean((closs, grads))
+        critic_p, c_opt = core.apply_gradients(critic_tx, grads, ls.critic_opt, ls.critic_params)
+        return ls.replace(critic_params=critic_p, critic_opt=c_opt), closs, td
+
+    def a_loss(p: Any, ls: LearnerState, obs: jax.Array, key: jax.Array, anchor: Callable | None):
+        a, log_prob = draw(p, obs, jax.random.split(key, 3)[2])
+        q = jnp.min(q_values(ls.critic_params, obs, a), axis=0)
+        if anchor is None:
+            return actor_loss(q, log_prob, alpha(ls)), (q, log_prob)
+        soft_q = q - jax.lax.stop_gradient(alpha(ls)) * log_prob  # TD3+BC's normalised objective on the soft Q
+        bc = anchor(jax.random.fold_in(key, 1), p)
+        return anchored_actor_loss(soft_q, bc, config.imitation_weight), (q, log_prob)
+
+    def actor_step(ls: LearnerState, tr: Transition, key: jax.Array, workers: Workers, anchor: Callable | None):
+        """The policy's step and, with ``learn_alpha``, the temperature's on the same draws."""
+        (aloss, (q, log_prob)), grads = jax.value_and_grad(a_loss, has_aux=True)(ls.actor_params, ls, tr.obs, key,
+                                                                                  anchor)  # fmt: skip
+        aloss, grads = workers.mean((aloss, grads))
+        actor_p, a_opt = core.apply_gradients(actor_tx, grads, ls.actor_opt, ls.actor_params)
+        extras = ls.extras
+        if config.learn_alpha:
+            grad = workers.mean(jax.grad(alpha_loss)(extras.log_alpha, log_prob, target_entropy))
+            log_alpha, alpha_opt = core.apply_gradients(alpha_tx, grad, extras.alpha_opt, extras.log_alpha)
+            extras = SACExtras(log_alpha=log_alpha, alpha_opt=alpha_opt)
+        return ls.replace(actor_params=actor_p, actor_opt=a_opt, extras=extras), aloss, q
+
+    def actor_loss_only(ls: LearnerState, tr: Transition, key: jax.Array, workers: Workers, anchor: Callable | None):
+        aloss, (q, _) = a_loss(ls.actor_params, ls, tr.obs, key, anchor)
+        return workers.mean(aloss), q
+
+    def targets(ls: LearnerState) -> LearnerState:
+        return ls.replace(target_critic_params=soft_update(ls.target_critic_params, ls.critic_params, config.tau))
+
+    def td_error(actor_p: Any, critic_p: Any, tr: Transition) -> jax.Array:
+        """``δ [2, N]`` under one network copy (no targets, no α): ``y`` with the policy's mode at ``s'``."""
+        next_q = q_values(critic_p, tr.next_obs, mode(actor.apply(actor_p, tr.next_obs)[0]))
+        y = critic_target(config, tr, jnp.min(next_q, axis=0))
+        return y[None] - q_values(critic_p, tr.obs, tr.action)
+
+    return Update(
+        sample_key=lambda key: jax.random.split(key, 3)[0], critic=critic_step, actor=actor_step,
+        actor_loss=actor_loss_only, targets=targets, td_error=td_error,
+        priority=lambda td: jnp.mean(jnp.abs(td), axis=0), extra_metrics=lambda ls: {"alpha": alpha(ls)},
+    )  # fmt: skip
+
+
+def make_member(config: SACConfig, action_size: int, critic_updates: int) -> trainer.Member:
+    """SAC as a :class:`~jaxrl_robot.agents.off_policy.trainer.Member` (``critic_updates``: the run's critic
+    updates, over which ``lr_end_factor`` anneals the step sizes; the actor's are that over ``policy_delay``)."""
+    actor, critic = make_networks(config, action_size)
+    actor_tx = core.make_optimizer(config.actor_lr, config.max_grad_norm, config.lr_end_factor,
+                                   critic_updates // config.policy_delay)  # fmt: skip
+    critic_tx = core.make_optimizer(config.critic_lr, config.max_grad_norm, config.lr_end_factor, critic_updates)
+    alpha_tx = core.make_optimizer(config.alpha_lr, 0.0)
+
+    def init(k_actor: jax.Array, k_critic: jax.Array, obs_size: int, action_size: int) -> dict[str, Any]:
+        actor_params = actor.init(k_actor, jnp.zeros((1, obs_size), jnp.float32))
+        critic_params = init_critics(critic, k_critic, obs_size, action_size, twin=True)
+        log_alpha = jnp.asarray(jnp.log(config.init_alpha), jnp.float32)
+        return dict(actor_params=actor_params, critic_params=critic_params, target_actor_params=(),
+                    target_critic_params=critic_params, actor_opt=actor_tx.init(actor_params),
+                    critic_opt=critic_tx.init(critic_params),
+                    extras=SACExtras(log_alpha=log_alpha, alpha_opt=alpha_tx.init(log_alpha)))  # fmt: skip
+
+    def act(params: Any, x: jax.Array) -> jax.Array:
+        return mode(actor.apply(params, x)[0])
+
+    def sample(keys: jax.Array, params: Any, x: jax.Array) -> jax.Array:
+        loc, raw = actor.apply(params, x)
+        scale = gaussian_scale(raw, config.min_std)
+        return jax.vmap(lambda k, m, s: tanh_gaussian_sample(k, m, s)[0])(keys, loc, scale)
+
+    update = make_update(config, actor, critic, (actor_tx, critic_tx, alpha_tx), config.entropy_target(action_size))
+    return trainer.Member(act=act, init=init, update=update, sample=sample, metric_names=("alpha",))
+
+
+def make_trainer(
+    config: SACConfig, env: Env, *, mesh: jax.sharding.Mesh | None = None, iterations_per_update: int | None = None
+) -> Trainer:
+    """Build the SAC :class:`~jaxrl_robot.types.Trainer` for ``env`` (``config.distributed``: with the
+    synchronous and collecting workers of thesis §4.2); the arguments and errors are
+    :func:`jaxrl_robot.agents.off_policy.make_trainer`'s."""
+    return trainer.make_trainer(config, env, make_member, mesh=mesh, iterations_per_update=iterations_per_update)
+
+
+make_train = core.make_train_for(make_trainer)
+"""``make_train(config, env, *, mesh=None, iterations_per_update=None) -> train``: ``train(key) -> (final
+state, metrics [num_updates])``, the whole run, pure and jittable."""
