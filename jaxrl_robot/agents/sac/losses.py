@@ -8,13 +8,15 @@ networks.  The critic loss and the target's reward, discount and clipping are th
 
 from __future__ import annotations
 
+import math
+
 import chex
 import jax
 import jax.numpy as jnp
 
 __all__ = ["actor_loss", "alpha_loss", "gaussian_scale", "soft_value", "tanh_gaussian_log_prob", "tanh_gaussian_sample"]
 
-_LOG_2PI = float(jnp.log(2.0 * jnp.pi))
+_LOG_2PI = math.log(2.0 * math.pi)
 
 
 def gaussian_scale(raw: jax.Array, min_std: float) -> jax.Array:
