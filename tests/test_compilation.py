@@ -93,3 +93,97 @@ def test_no_compile_cache_is_the_off_spelling_and_the_cache_option_is_not_saved(
     assert "compile_cache" in common.COMMAND_LINE_FIELDS  # a resumed run takes it from its command line
     _, _, config = ppo_cli.CLI.build(args)
     assert "compile_cache" not in config["args"]
+
+
+# ---- ProgramCache: whole programs kept between processes ---------------------------------------------------
+def _program(traced):
+    """``f(params, x) -> ({"y": …}, count)``; appends to ``traced`` each time it is traced."""
+    import jax.numpy as jnp
+
+    def f(params, x):
+        traced.append(1)
+        return {"y": jnp.tanh(x @ params["w"]) + params["b"]}, jnp.sum(x > 0)
+
+    return f
+
+
+def _args(rows=3):
+    import numpy as np
+
+    rng = np.random.default_rng(0)
+    params = {"w": rng.normal(size=(4, 2)).astype("float32"), "b": np.float32(0.5)}
+    return params, rng.normal(size=(rows, 4)).astype("float32")
+
+
+def test_a_kept_program_is_found_by_a_new_cache_without_tracing_and_computes_the_same(tmp_path):
+    import jax
+    import numpy as np
+
+    traced = []
+    f, args = _program(traced), _args()
+    expected = jax.jit(f)(*args)
+    assert len(traced) == 1
+    log = compilation.compile_log()
+    mark = log.mark()
+    first = compilation.ProgramCache(str(tmp_path), {"run": 1}).compile("f", f, *args)(*args)
+    assert len(traced) == 2 and len(list(tmp_path.glob("f-*.jaxexport"))) == 1
+    again = compilation.ProgramCache(str(tmp_path), {"run": 1})  # as a later process would build it
+    second = again.compile("f", f, *args)(*args)
+    assert len(traced) == 2  # loaded, not traced
+    for got in (first, second):
+        assert jax.tree.structure(got) == jax.tree.structure(expected)
+        for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(expected), strict=True):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    assert log.since(mark)["program_cache"] == {"loaded": 1, "built": 1, "load_s": log.since(mark)["program_cache"]
+                                                ["load_s"], "unsaved": 0}  # fmt: skip
+    compilation.ProgramCache(str(tmp_path), {"run": 2}).compile("f", f, *args)  # other settings: another program
+    compilation.ProgramCache(str(tmp_path), {"run": 1}).compile("f", f, *_args(rows=5))  # other shapes: another
+    assert len(traced) == 4 and len(list(tmp_path.glob("f-*.jaxexport"))) == 3
+
+
+def test_a_damaged_kept_program_is_built_again_with_one_note(tmp_path, capsys):
+    import numpy as np
+
+    traced = []
+    f, args = _program(traced), _args()
+    cache = compilation.ProgramCache(str(tmp_path), {"run": 1})
+    expected = cache.compile("f", f, *args)(*args)
+    (path,) = tmp_path.glob("f-*.jaxexport")
+    path.write_bytes(path.read_bytes()[:100])
+    got = compilation.ProgramCache(str(tmp_path), {"run": 1}).compile("f", f, *args)(*args)
+    assert len(traced) == 2
+    np.testing.assert_array_equal(np.asarray(got[0]["y"]), np.asarray(expected[0]["y"]))
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("note: kept program f-") and "building it again" in err[0]
+    compilation.ProgramCache(str(tmp_path), {"run": 1}).compile("f", f, *args)
+    assert len(traced) == 2  # the rebuilt program was kept
+
+
+def test_a_program_that_cannot_be_kept_still_runs(tmp_path, capsys):
+    import jax
+    import numpy as np
+
+    def with_callback(x):
+        return jax.pure_callback(lambda v: np.asarray(v) * 2, jax.ShapeDtypeStruct(x.shape, x.dtype), x) + 1
+
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    log = compilation.compile_log()
+    mark = log.mark()
+    x = np.arange(3, dtype="float32")
+    got = compilation.ProgramCache(str(tmp_path), {}).compile("cb", with_callback, x)(x)  # not exportable
+    np.testing.assert_array_equal(np.asarray(got), [1, 3, 5])
+    got = compilation.ProgramCache(str(blocker / "programs"), {}).compile("f", _program([]), *_args())(*_args())
+    assert got[0]["y"].shape == (3, 2)  # a folder that cannot be written: built, not kept
+    assert log.since(mark)["program_cache"]["unsaved"] == 2 and not list(tmp_path.glob("*.jaxexport"))
+    assert all(line.startswith("note: ") for line in capsys.readouterr().err.strip().splitlines())
+
+
+def test_the_key_follows_the_project_files(tmp_path):
+    (tmp_path / "pkg").mkdir()
+    (tmp_path / "pkg" / "a.py").write_text("x = 1\n")
+    before = compilation._files_digest(str(tmp_path / "pkg"))
+    (tmp_path / "pkg" / "a.py").write_text("x = 2\n")
+    assert compilation._files_digest(str(tmp_path / "pkg")) != before
+    assert common.program_context({"args": {"seed": 3, "out": "x", "env": "arm7"}, "ppo": {"gamma": 0.9}}) == {
+        "args": {"env": "arm7"}, "ppo": {"gamma": 0.9}}  # other seeds and folders share programs

@@ -93,7 +93,7 @@ from jaxrl_robot.checkpoint import (
     DirectoryLock,
     Restored,
 )
-from jaxrl_robot.compilation import compile_log, enable_persistent_cache, resolve_cache_dir
+from jaxrl_robot.compilation import ProgramCache, compile_log, enable_persistent_cache, resolve_cache_dir
 from jaxrl_robot.evaluation import (
     PRECISION_THRESHOLDS,
     precision_summary,
@@ -222,6 +222,8 @@ class RunSpec(RunSettings):
       episode_length: step limit of a test episode (0: ``env.episode_length``).
       compile_mark: :meth:`~jaxrl_robot.compilation.CompileLog.mark` taken when the command began:
         ``eval.json``'s ``compile`` counts the compilations since (None: since the process began).
+      program_cache: where the run's programs (initialisation, chunk, evaluation) are kept between
+        processes (:class:`~jaxrl_robot.compilation.ProgramCache`, keyed by ``config``); None: built here.
     """
 
     algo: str
@@ -232,6 +234,7 @@ class RunSpec(RunSettings):
     run_dir: str | None = None
     episode_length: int = 0
     compile_mark: tuple | None = None
+    program_cache: ProgramCache | None = None
 
 
 def use_progress_bar() -> bool:
@@ -480,9 +483,12 @@ def compile_evaluation_async(
     def evaluation(k: jax.Array, s: Any) -> dict[str, Any]:
         return final_episodes(k, env, strict, policy_of(s), n, limit)
 
-    fn = jax.jit(evaluation)
+    fn, cache = jax.jit(evaluation), spec.program_cache
     executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="compile-eval")
-    future = executor.submit(lambda: fn.lower(key, state).compile())
+    if cache is None:
+        future = executor.submit(lambda: fn.lower(key, state).compile())
+    else:
+        future = executor.submit(cache.compile, "evaluation", fn, key, state)
     executor.shutdown(wait=False)
     return future
 
@@ -771,7 +777,7 @@ def _run_locked(spec: RunSpec, run_dir: str) -> dict[str, Any]:
     startup_s = process_age_s()
     seeds = [spec.seed + i for i in range(spec.seeds)]
     several = len(seeds) > 1
-    program = SeedProgram.of(trainer, len(seeds), spec.seed_map)
+    program = SeedProgram.of(trainer, len(seeds), spec.seed_map, spec.program_cache)
     state = program.init(seeds)
     seed_dirs = [os.path.join(run_dir, f"seed{k}") for k in seeds] if several else [run_dir]
     ckpt = Checkpointer(os.path.join(run_dir, "checkpoints"))
@@ -960,16 +966,19 @@ class SeedProgram:
     per_seed: Callable[[Any], list[dict[str, float]]]
 
     @staticmethod
-    def of(trainer: Trainer, n: int, seed_map: str = "auto") -> SeedProgram:
-        """The program of ``n`` seeds of ``trainer`` under ``seed_map`` (one of :data:`SEED_MAPS`)."""
+    def of(trainer: Trainer, n: int, seed_map: str = "auto", cache: ProgramCache | None = None) -> SeedProgram:
+        """The program of ``n`` seeds of ``trainer`` under ``seed_map`` (one of :data:`SEED_MAPS`); its
+        initialisation and chunk taken from ``cache`` when there (None: ``jax.jit``)."""
         mapping = resolve_seed_map(seed_map)
         floats = lambda m: {k: float(v) for k, v in m.items()}  # noqa: E731
-        update = jax.jit(trainer.update)
+        jit = jax.jit if cache is None else (lambda fn: cache.jit(getattr(fn, "__name__", "program"), fn))  # noqa: E731
+        update = jit(trainer.update)
         if n == 1:
-            init = lambda seeds: jax.jit(trainer.init)(jax.random.PRNGKey(seeds[0]))  # noqa: E731
+            init_one = jit(trainer.init)
+            init = lambda seeds: init_one(jax.random.PRNGKey(seeds[0]))  # noqa: E731
             return SeedProgram(init, update, lambda tree, i: tree, lambda m: [floats(m)])
         if mapping == "loop":
-            init_one = jax.jit(trainer.init)
+            init_one = jit(trainer.init)
 
             def update_all(states: tuple) -> tuple[tuple, tuple]:
                 out = [update(s) for s in states]
@@ -978,10 +987,12 @@ class SeedProgram:
             return SeedProgram(lambda seeds: tuple(init_one(jax.random.PRNGKey(k)) for k in seeds), update_all,
                                lambda tree, i: tree[i], lambda ms: [floats(m) for m in ms])  # fmt: skip
 
-        def init_all(seeds: Sequence[int]) -> Any:
-            return jax.jit(jax.vmap(trainer.init))(jnp.stack([jax.random.PRNGKey(k) for k in seeds]))
+        init_vmapped = jit(jax.vmap(trainer.init))
 
-        return SeedProgram(init_all, jax.jit(jax.vmap(trainer.update)),
+        def init_all(seeds: Sequence[int]) -> Any:
+            return init_vmapped(jnp.stack([jax.random.PRNGKey(k) for k in seeds]))
+
+        return SeedProgram(init_all, jit(jax.vmap(trainer.update)),
                            lambda tree, i: jax.tree.map(lambda x: x[i], tree),
                            lambda m: [{k: float(v[i]) for k, v in m.items()} for i in range(n)])  # fmt: skip
 
@@ -1368,6 +1379,17 @@ class AlgorithmCLI:
         return cli_main(self, argv)
 
 
+RUN_ONLY_FIELDS = ("seed", "out", "resume", "checkpoint_every", "stop_after_steps", "progress", "evals")
+"""Options of ``config.json``'s ``args`` that never change a compiled program (the seed enters as an argument)."""
+
+
+def program_context(config: dict[str, Any]) -> dict[str, Any]:
+    """What of a run's ``config`` keys its :class:`~jaxrl_robot.compilation.ProgramCache`: all of it but
+    :data:`RUN_ONLY_FIELDS`, so that runs with other seeds or folders share programs."""
+    args = {k: v for k, v in config.get("args", {}).items() if k not in RUN_ONLY_FIELDS}
+    return _jsonable({**config, "args": args})
+
+
 def cache_flags(argv: Sequence[str]) -> list[str]:
     """``argv`` with ``--no-compile-cache`` spelled ``--compile-cache off`` (the field tyro parses)."""
     return [x for a in argv for x in (("--compile-cache", "off") if a == "--no-compile-cache" else (a,))]
@@ -1398,16 +1420,18 @@ def cli_main(cli: AlgorithmCLI, argv: Sequence[str] | None = None) -> int:
     from envs_mjx.config import ConfigError
 
     argv = cache_flags(sys.argv[1:] if argv is None else argv)
+    cache_dir = None
     log = compile_log()
     mark = log.mark()
     try:
         if not _asks_for_help(argv):
             check_command_line(argv, cli.args_type.ranges)
             known = preparse(argv, ("compile_cache",))
-            enable_persistent_cache(resolve_cache_dir(known.compile_cache))
+            cache_dir = enable_persistent_cache(resolve_cache_dir(known.compile_cache))
             parallel.initialize_multihost(known.coordinator, known.num_processes, known.process_id)
         args = cli.parse(argv)
         env, trainer, config = cli.build(args)
+        programs = None if _asks_for_help(argv) else ProgramCache.under(cache_dir, program_context(config))
     except (ConfigError, ValueError, FileNotFoundError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
@@ -1420,6 +1444,7 @@ def cli_main(cli: AlgorithmCLI, argv: Sequence[str] | None = None) -> int:
         run_dir=args.resume,
         episode_length=int(config[cli.name]["episode_length"]),
         compile_mark=mark,
+        program_cache=programs,
         **settings_of(args),
     )
     try:

@@ -85,16 +85,22 @@ def assert_same_learnt_state(state, reference, atol=None):
 
 
 def test_resume_equals_uninterrupted(tmp_path, capsys):
-    # The three runs compile the same programs: the 2nd and 3rd load them from the persistent compilation cache.
+    """A run stopped half-way and resumed ends where an uninterrupted one does, to the bit; the uninterrupted
+    run's programs are jitted here (no program cache), the resumed run's are the kept ones
+    (``jaxrl_robot.compilation.ProgramCache``: built by the stopped run or an earlier test, loaded without
+    tracing), so the kept programs compute what jax.jit's do."""
     args = [*RUN, "--seed", "7"]
     with cache_every_program():
-        assert ppo_cli.main([*args, "--out", str(tmp_path / "a")]) == 0  # uninterrupted
+        assert ppo_cli.main([*args, "--out", str(tmp_path / "a"), "--no-compile-cache"]) == 0  # uninterrupted
         assert ppo_cli.main([*args, "--out", str(tmp_path / "b"), "--stop-after-steps", "128"]) == 0  # stopped half-way
         (run_b,) = glob.glob(str(tmp_path / "b" / "*"))
         assert not os.path.exists(os.path.join(run_b, "eval.json"))
         assert ppo_cli.main(["--resume", run_b]) == 0  # continued
     assert "resumed at chunk 2 (128 env steps)" in capsys.readouterr().out
+    kept = json.load(open(os.path.join(run_b, "eval.json")))["compile"]["program_cache"]
+    assert kept["loaded"] >= 2 and kept["loaded"] + kept["built"] == 3  # initialisation, chunk (and evaluation)
     (run_a,) = glob.glob(str(tmp_path / "a" / "*"))
+    assert json.load(open(os.path.join(run_a, "eval.json")))["compile"]["program_cache"]["loaded"] == 0
     sa, ra = final_checkpoint(run_a)
     sb, rb = final_checkpoint(run_b)
     assert ra["chunk"] == rb["chunk"] == 4
