@@ -5,12 +5,14 @@ MuJoCo Warp kernels (``warp-lang``, ``pip install -e ".[warp]"``) called from th
 NVIDIA GPU or the CPU.  XLA compiles MJX's step anew for every program, tens of seconds; Warp compiles its
 kernels once per machine and keeps them on disk (``~/.cache/warp``, ``$WARP_CACHE_PATH``), so with them
 cached a run starts in seconds.  ``warp`` therefore pays for the start-up of GPU runs; the JAX implementation
-steps faster there, and on the CPU Warp steps the envs about a hundred times slower (and its first kernel
-compilation takes about a minute), so it is no CPU training setting.  ``benchmarks/env_throughput.py --impl
-jax warp`` measures both.  ``unicycle``'s implicitly integrated lateral grip differs between the engines:
-MuJoCo Warp, like MuJoCo's C engine, keeps only the part of the grip's velocity derivative inside the mass
-matrix's (diagonal) sparsity, MJX's JAX implementation all of it, so the two backends' trajectories differ
-there (``tests/envs/test_warp.py``).
+steps faster there.  On the 2-core CPU Warp stepped ``arm7`` and ``unicycle`` at 0.01-0.05x the JAX
+implementation's steps/s (64 lanes) and compiled its kernels on a fresh cache in 39 s (``arm7``; 23 s more for
+``unicycle``'s implicit integrator): no CPU training setting (``benchmarks/results/cpu-env_throughput-jax-warp*``;
+``benchmarks/env_throughput.py --impl jax warp`` measures both).
+
+``unicycle``'s implicitly integrated lateral grip differs between the engines: MuJoCo Warp, like MuJoCo's C
+engine, keeps only the part of the grip's velocity derivative inside the mass matrix's (diagonal) sparsity,
+MJX's JAX implementation all of it, so the two backends' trajectories differ there (``tests/envs/test_warp.py``).
 
 A Warp ``mjx.Data`` batched by ``jax.vmap`` keeps some fields *shared* by all lanes, without a lane axis
 (the contact buffers and counters: MuJoCo Warp's ``naconmax`` is across all worlds).  A select between two

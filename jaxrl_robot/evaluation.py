@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 from brax.envs.base import Env
 
+from envs_mjx import backend
 from jaxrl_robot.networks import gaussian_sample
 from jaxrl_robot.types import Policy, RecurrentPolicy, as_recurrent
 
@@ -91,8 +92,9 @@ def two_policies(first: Policy | RecurrentPolicy, second: Policy | RecurrentPoli
 
 
 def freeze(live: jax.Array, old: Any, new: Any) -> Any:
-    """``new`` where ``live [E]`` > 0, else ``old``: a pytree of ``[E, ...]`` leaves, lane by lane."""
-    return jax.tree.map(lambda o, n: jnp.where(live.reshape(live.shape + (1,) * (n.ndim - 1)) > 0, n, o), old, new)
+    """``new`` where ``live [E]`` > 0, else ``old``: a pytree of ``[E, ...]`` leaves, lane by lane (a MuJoCo Warp
+    data's fields shared by all lanes, without a lane axis, are ``old``'s: ``envs_mjx.backend.select``)."""
+    return backend.select(live > 0, new, old)
 
 
 def run_test_episodes(

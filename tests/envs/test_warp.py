@@ -93,6 +93,25 @@ def test_arm7_warp_and_jax_backends_agree_under_vmap_with_resets(arm7_runs):
     assert np.abs(obs_w - obs_w[:, :1]).max() > 1e-3  # the lanes differ (no broadcast of one lane)
 
 
+def test_lane_select_keeps_the_warp_fields_all_lanes_share(arm7_runs):
+    """``evaluation.freeze`` (through ``backend.select``) picks lane by lane and leaves the Warp data's shared
+    fields (no lane axis) as they were; on MJX's JAX data every leaf is a lane's."""
+    from jaxrl_robot.evaluation import freeze
+
+    live = jnp.asarray([1.0, 0.0, 1.0])
+    for impl, shared_fields in (("jax", False), ("warp", True)):
+        old = arm7_runs[impl][2]
+        new = backend.lane_map(lambda x: x + 1 if jnp.issubdtype(x.dtype, jnp.floating) else x, old)
+        out = freeze(live, old, new)
+        np.testing.assert_array_equal(np.asarray(out.pipeline_state.qpos)[[0, 2]], new.pipeline_state.qpos[[0, 2]])
+        np.testing.assert_array_equal(out.pipeline_state.qpos[1], old.pipeline_state.qpos[1])
+        np.testing.assert_array_equal(out.obs[1], old.obs[1])
+        assert backend.has_shared(old) == shared_fields
+        if shared_fields:
+            contact = old.pipeline_state._impl.contact__pos
+            assert contact.shape[0] != LANES and out.pipeline_state._impl.contact__pos is contact
+
+
 def _scara_control_step(env, d, action):
     """``scara``'s control: servo targets ``clip(q + C a)`` held for ``n_substeps`` physics steps."""
     cfg = env.config
