@@ -192,6 +192,36 @@ class Learner(NamedTuple):
     priorities: Callable[..., jax.Array]
 
 
+def _actor_phase(
+    update: Update, policy_delay: int, move: jax.Array, actor_on: jax.Array | None, batch: tuple, nets: LearnerState
+) -> tuple[LearnerState, jax.Array, jax.Array]:
+    """The actor step and the target updates of one update where they are due: ``move`` (``[]`` bool, the
+    ``policy_delay``-th critic update) and ``actor_on`` (None: always; False: the targets only, the actor
+    learning elsewhere).  ``batch = (tr, key, workers, anchor)``.  Returns the networks, the actor loss and
+    ``q [N]`` (reported also where no step is taken)."""
+
+    def actor_step(nets: LearnerState) -> tuple[LearnerState, jax.Array, jax.Array]:
+        nets, aloss, q = update.actor(nets, *batch)
+        return update.targets(nets), aloss, q
+
+    def hold(nets: LearnerState) -> tuple[LearnerState, jax.Array, jax.Array]:
+        """No actor or target step (``policy_delay``); the loss is still reported."""
+        aloss, q = update.actor_loss(nets, *batch)
+        return nets, aloss, q
+
+    def follow(nets: LearnerState) -> tuple[LearnerState, jax.Array, jax.Array]:
+        """No actor step, soft target updates (the actor learns elsewhere: imitation)."""
+        nets, aloss, q = hold(nets)
+        return update.targets(nets), aloss, q
+
+    if actor_on is not None:
+        branch = jnp.where(move, jnp.where(actor_on, 1, 2), 0)
+        return jax.lax.switch(branch, (hold, actor_step, follow), nets)
+    if policy_delay > 1:
+        return jax.lax.cond(move, actor_step, hold, nets)
+    return actor_step(nets)
+
+
 def make_learner(
     config: OffPolicyConfig,
     update: Update,
@@ -223,30 +253,9 @@ def make_learner(
         smp = workers.flat(sample(replay, workers, update.sample_key(key), ls.replay))  # [G·b] rows of the workers
         tr = normalized(stats, smp.experience)
         ls, closs, td = update.critic(ls, tr, smp.weights if config.per else None, key, workers)
-
-        def actor_step(nets: LearnerState) -> tuple[LearnerState, jax.Array, jax.Array]:
-            nets, aloss, q = update.actor(nets, tr, key, workers, anchor)
-            return update.targets(nets), aloss, q
-
-        def hold(nets: LearnerState) -> tuple[LearnerState, jax.Array, jax.Array]:
-            """No actor or target step (``policy_delay``); the loss is still reported."""
-            aloss, q = update.actor_loss(nets, tr, key, workers, anchor)
-            return nets, aloss, q
-
-        def follow(nets: LearnerState) -> tuple[LearnerState, jax.Array, jax.Array]:
-            """No actor step, soft target updates (the actor learns elsewhere: imitation)."""
-            nets, aloss, q = hold(nets)
-            return update.targets(nets), aloss, q
-
-        nets = ls.replace(replay=())  # the networks only go through the branches, not the memory
         move = (index + 1) % config.policy_delay == 0
-        if actor_on is not None:
-            branch = jnp.where(move, jnp.where(actor_on, 1, 2), 0)
-            nets, aloss, q = jax.lax.switch(branch, (hold, actor_step, follow), nets)
-        elif config.policy_delay > 1:
-            nets, aloss, q = jax.lax.cond(move, actor_step, hold, nets)
-        else:
-            nets, aloss, q = actor_step(nets)
+        nets = ls.replace(replay=())  # the networks only go through the branches, not the memory
+        nets, aloss, q = _actor_phase(update, config.policy_delay, move, actor_on, (tr, key, workers, anchor), nets)
         ls = nets.replace(replay=ls.replay)
         if config.per:
             indices, err = workers.gather((smp.indices, clipped(update.priority(td))))
