@@ -72,6 +72,10 @@ def check_impl(impl: Any, mode: str | None = None, physics_modes: tuple[str, ...
             f"choose impl='jax' or mode {choices}"
         )
     if not warp_installed():
+        from envs_mjx.xla import WARP_ENV, warp_skipped
+
+        if warp_skipped():
+            raise WarpMissingError(f"impl='warp' needs MuJoCo Warp, which this process left out ({WARP_ENV}=off)")
         raise WarpMissingError('impl=\'warp\' needs warp-lang, which is not installed: pip install -e ".[warp]"')
 
 

@@ -103,21 +103,38 @@ def jit(fun: Callable, **kwargs: Any) -> Callable:
 _WARP_PROBE_LINES = ("Failed to import warp:", "Failed to import mujoco_warp:")
 
 
+WARP_ENV = "JAXRL_ROBOT_WARP"
+"""Environment variable: ``off`` imports MJX without MuJoCo Warp (its import costs 3–8 s of start-up), so that
+``impl=warp`` is unavailable in the process; anything else (the default) imports Warp when it is installed.
+``python -m train.<algo>`` sets it to ``off`` for a command that does not ask for Warp (``train/__init__.py``)."""
+
+
+def warp_skipped() -> bool:
+    """Whether this process imports MJX without MuJoCo Warp (:data:`WARP_ENV`)."""
+    return os.environ.get(WARP_ENV, "").strip().lower() in ("off", "0", "no", "false")
+
+
 def import_mjx_quietly() -> None:
     """Import ``mujoco.mjx`` without the lines its optional Warp backend prints when Warp is absent.
 
     ``mujoco.mjx.warp`` probes for the ``warp`` package at import and *prints* (not logs)
     ``Failed to import warp: ...`` and ``Failed to import mujoco_warp: ...`` when it is not
-    installed; MJX's JAX backend, the one this package uses, does not need it. Only those two
-    lines are dropped; anything else printed during the import is passed on, and an import error
-    is raised as usual. Does nothing if ``mujoco.mjx`` is already imported.
+    installed; MJX's JAX backend, the default, does not need it. Only those two lines are dropped;
+    anything else printed during the import is passed on, and an import error is raised as usual.
+    With :func:`warp_skipped`, Warp is left out as if it were not installed. Does nothing if
+    ``mujoco.mjx`` is already imported.
     """
     if "mujoco.mjx" in sys.modules:
         return
     buf = io.StringIO()
+    blocked = warp_skipped() and "warp" not in sys.modules
     try:
+        if blocked:
+            sys.modules["warp"] = None  # type: ignore[assignment]  # an import of it fails as if absent
         with contextlib.redirect_stdout(buf):
             import mujoco.mjx  # noqa: F401
     finally:
+        if blocked:
+            del sys.modules["warp"]
         kept = [line for line in buf.getvalue().splitlines(True) if not line.startswith(_WARP_PROBE_LINES)]
         sys.stdout.write("".join(kept))

@@ -377,7 +377,8 @@ class ProgramCache:
             try:
                 blob, out_tree = _export(fn, in_tree, leaves)
             except Exception as e:  # not exportable: compiled as jax.jit would, every time
-                self._warn(f"program {name!r} is not kept between runs ({type(e).__name__}: {e})"[:300])
+                first = str(e).strip().splitlines()[0] if str(e).strip() else ""
+                self._warn(f"program {name!r} is not kept between runs ({type(e).__name__}: {first})"[:300])
                 compile_log().program(False, 0.0, saved=False)
                 return jax.jit(fn).lower(*args).compile()
             compile_log().program(False, 0.0, self._save(path, blob, out_tree))

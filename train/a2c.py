@@ -22,7 +22,6 @@ Examples::
 from __future__ import annotations
 
 import os
-import sys
 from dataclasses import dataclass, field
 from typing import Annotated, Any
 
@@ -112,4 +111,4 @@ def main(argv: list[str] | None = None, algo: str = "a2c") -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    common.exit_process(main())

@@ -8,8 +8,6 @@ Flags, presets, run directory and figures as ``python -m train.a2c`` (see ``trai
 
 from __future__ import annotations
 
-import sys
-
 from train.a2c import main as _main
 
 __all__ = ["main"]
@@ -21,4 +19,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from train import common
+
+    common.exit_process(main())

@@ -20,7 +20,6 @@ options of a run over several hosts, …) are ``train.common.RunOptions``.
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass, field
 from typing import Annotated, Any
 
@@ -74,4 +73,4 @@ CLI = common.AlgorithmCLI(
 parse, build, main = CLI.parse, CLI.build, CLI.main
 
 if __name__ == "__main__":
-    sys.exit(main())
+    common.exit_process(main())

@@ -21,7 +21,6 @@ Examples::
 from __future__ import annotations
 
 import dataclasses
-import sys
 from dataclasses import dataclass, field
 from typing import Annotated, Any
 
@@ -64,4 +63,4 @@ CLI = ddpg.OffPolicyCLI(
 parse, build, main = CLI.parse, CLI.build, CLI.main
 
 if __name__ == "__main__":
-    sys.exit(main())
+    ddpg.common.exit_process(main())

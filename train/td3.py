@@ -20,7 +20,6 @@ Examples::
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass, field
 from typing import Annotated, Any
 
@@ -61,4 +60,4 @@ CLI = ddpg.OffPolicyCLI(
 parse, build, main = CLI.parse, CLI.build, CLI.main
 
 if __name__ == "__main__":
-    sys.exit(main())
+    ddpg.common.exit_process(main())
