@@ -17,6 +17,7 @@ from tests.run_dirs import make_run, state_after
 from train import a2c as a2c_cli
 from train import ddpg as ddpg_cli
 from train import ppo as ppo_cli
+from train import sac as sac_cli
 from train import td3 as td3_cli
 
 BRAX_FAST = ["--env", "brax:fast", "--episode-length", "8", "--total-steps", "256", "--chunks", "2"]
@@ -32,6 +33,7 @@ VARIANTS = {  # PPO with an MLP and no batch-norm: ppo_run
     "a3c": (a2c_cli.CLIS["a3c"], A2C),
     "ddpg": (ddpg_cli.CLI, OFF_POLICY),
     "td3": (td3_cli.CLI, OFF_POLICY),
+    "sac": (sac_cli.CLI, OFF_POLICY),
 }
 
 OBS = np.random.default_rng(0).normal(size=(5, 2)).astype(np.float32)  # brax:fast observes [2]
@@ -139,9 +141,9 @@ def test_what_is_no_loadable_run_is_a_one_line_error(tmp_path, ppo_run):
     cases.append((str(stopped), r"stopped: no checkpoint yet \(the run stopped before its first one\)$"))
     other = tmp_path / "other"
     other.mkdir()
-    (other / "config.json").write_text(json.dumps({"algo": "sac", "args": {}}))
-    cases.append((str(other), r"^no run loader for algorithm 'sac' \(jaxrl_robot.runs entry points; registered: "
-                              r"a2c, a3c, ddpg, ppo, td3\)$"))  # fmt: skip
+    (other / "config.json").write_text(json.dumps({"algo": "dqn", "args": {}}))
+    cases.append((str(other), r"^no run loader for algorithm 'dqn' \(jaxrl_robot.runs entry points; registered: "
+                              r"a2c, a3c, ddpg, ppo, sac, td3\)$"))  # fmt: skip
     broken = tmp_path / "broken"
     broken.mkdir()
     (broken / "config.json").write_text("{")

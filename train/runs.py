@@ -1,7 +1,7 @@
 """Rebuild a training run from its directory: the run loader of every ``python -m train.<algo>`` run.
 
 ``pyproject.toml`` registers :func:`load_run` under the ``jaxrl_robot.runs`` entry points for ``ppo``,
-``a2c``, ``a3c``, ``ddpg`` and ``td3``, so ``jaxrl_robot.load_policy`` finds it without importing ``train``;
+``a2c``, ``a3c``, ``ddpg``, ``td3`` and ``sac``, so ``jaxrl_robot.load_policy`` finds it without importing ``train``;
 ``python -m train.eval`` calls it through ``jaxrl_robot.runs.load_run``.
 
 The env, the trainer and the state's structure come from ``config.json`` by the path ``--resume`` takes
@@ -29,7 +29,7 @@ from train import common
 
 __all__ = ["ALGOS", "cli_of", "load_run", "rebuild"]
 
-ALGOS = ("ppo", "a2c", "a3c", "ddpg", "td3")
+ALGOS = ("ppo", "a2c", "a3c", "ddpg", "td3", "sac")
 """The algorithms whose runs :func:`load_run` rebuilds."""
 
 
@@ -49,6 +49,8 @@ def cli_of(algo: str) -> common.AlgorithmCLI:
         from train.ddpg import CLI
     elif algo == "td3":
         from train.td3 import CLI
+    elif algo == "sac":
+        from train.sac import CLI
     else:
         raise RunLoadError(f"unknown algorithm {algo!r} in config.json; valid: {', '.join(ALGOS)}")
     return CLI

@@ -135,6 +135,16 @@ MakeMember = Callable[[Any, int, int], Member]
 """``(config, action_size, critic updates of the run) -> Member``."""
 
 
+def member_optimizers(config: OffPolicyConfig, critic_updates: int) -> tuple[Any, Any]:
+    """``(actor_tx, critic_tx)``: a member's Adam optimisers (:func:`~jaxrl_robot.agents.core.make_optimizer`),
+    their step sizes annealed by ``lr_end_factor`` over the run's ``critic_updates`` (the actor's over
+    ``critic_updates // policy_delay``, the updates it takes)."""
+    actor_tx = core.make_optimizer(config.actor_lr, config.max_grad_norm, config.lr_end_factor,
+                                   critic_updates // config.policy_delay)  # fmt: skip
+    critic_tx = core.make_optimizer(config.critic_lr, config.max_grad_norm, config.lr_end_factor, critic_updates)
+    return actor_tx, critic_tx
+
+
 class Setup(NamedTuple):
     """A validated configuration and what is built from it.
 

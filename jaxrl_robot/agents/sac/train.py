@@ -131,9 +131,7 @@ def make_member(config: SACConfig, action_size: int, critic_updates: int) -> tra
     """SAC as a :class:`~jaxrl_robot.agents.off_policy.trainer.Member` (``critic_updates``: the run's critic
     updates, over which ``lr_end_factor`` anneals the step sizes; the actor's are that over ``policy_delay``)."""
     actor, critic = make_networks(config, action_size)
-    actor_tx = core.make_optimizer(config.actor_lr, config.max_grad_norm, config.lr_end_factor,
-                                   critic_updates // config.policy_delay)  # fmt: skip
-    critic_tx = core.make_optimizer(config.critic_lr, config.max_grad_norm, config.lr_end_factor, critic_updates)
+    actor_tx, critic_tx = trainer.member_optimizers(config, critic_updates)
     alpha_tx = core.make_optimizer(config.alpha_lr, 0.0)
 
     def init(k_actor: jax.Array, k_critic: jax.Array, obs_size: int, action_size: int) -> dict[str, Any]:
