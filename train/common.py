@@ -1087,6 +1087,15 @@ def env_record(name: str, env: Any) -> dict[str, Any]:
     return {"name": name, "config": dataclasses.asdict(config) if dataclasses.is_dataclass(config) else None}
 
 
+def check_backend_devices(overrides: Mapping[str, Any], devices: int) -> None:
+    """Raise ``ValueError`` (one line, naming ``--devices``) when the env's physics runs on MuJoCo Warp
+    (``impl=warp``) and the lanes would be spread over several devices: a Warp data shares some fields by
+    all its lanes, which splitting the lanes over devices does not keep."""
+    if str(overrides.get("impl", "jax")) == "warp" and devices > 1:
+        raise ValueError(f"--env-config impl=warp runs its lanes on one device; add --devices 1 (the lanes "
+                         f"would be spread over {devices})")  # fmt: skip
+
+
 def make_env(name: str, overrides: dict[str, Any]) -> Env:
     """An unbatched env: ``envs_mjx.make(name, **overrides)``, ``brax.envs.get_environment`` (``brax:<name>``)
     or MuJoCo Playground's (``playground:<Name>``: ``envs_mjx.playground.load``, the overrides its
@@ -1355,7 +1364,9 @@ class AlgorithmCLI:
         if resolve_seed_map(args.seed_map) == "vmap" and args.seeds > 1 and mesh.devices.size > 1:
             raise ValueError(f"--seeds {args.seeds} vmapped runs on one device; add --devices 1 (the lanes would "
                              f"be spread over {mesh.devices.size}) or --seed-map loop")  # fmt: skip
-        env = make_env(args.env, self.env_settings(args))
+        overrides = self.env_settings(args)
+        check_backend_devices(overrides, mesh.devices.size)
+        env = make_env(args.env, overrides)
         if not cfg.episode_length:
             cfg = cfg.replace(episode_length=episode_length(env))
             self.validate(args, cfg)

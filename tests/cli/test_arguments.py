@@ -100,6 +100,14 @@ def test_too_many_devices_names_the_flag_and_the_device_count(tmp_path, capsys):
     assert not (tmp_path / "runs").exists()
 
 
+def test_warp_physics_over_several_devices_is_one_line_naming_devices():
+    common.check_backend_devices({"impl": "warp"}, 1)
+    common.check_backend_devices({"impl": "jax", "mode": "pd"}, 4)
+    with pytest.raises(ValueError, match=r"^--env-config impl=warp runs its lanes on one device; add --devices 1 "
+                                         r"\(the lanes would be spread over 2\)$"):  # fmt: skip
+        common.check_backend_devices({"impl": "warp", "mode": "pd"}, 2)
+
+
 @pytest.mark.parametrize(
     ("algo", "argv", "message"),
     [
