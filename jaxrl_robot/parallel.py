@@ -63,6 +63,7 @@ __all__ = [
     "lane_sharding",
     "local_lane_count",
     "lost_peer",
+    "on_accelerator",
     "pmean",
     "psum",
     "set_peer_loss_note",
@@ -74,6 +75,11 @@ LANES = "lanes"
 P = PartitionSpec
 IMPLS = ("shard_map", "vmap")
 IMPL_ENV = "JAXRL_LANE_MAP"
+
+
+def on_accelerator() -> bool:
+    """Whether JAX's default backend is an accelerator (a GPU or TPU) rather than the CPU."""
+    return jax.default_backend() != "cpu"
 
 
 def lane_mesh(num_devices: int | None = None, devices: Sequence[jax.Device] | None = None) -> Mesh:
