@@ -75,7 +75,7 @@ import argparse
 import json
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import jax
@@ -532,6 +532,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--merge", nargs="+", default=None, metavar="JSON",
                    help="write one report from results files of this benchmark (e.g. ours and brax's run on two "
                    "GPUs at once): per task, our side and brax's from the files that ran them")  # fmt: skip
+    p.add_argument("--brax-from", nargs="+", default=[], metavar="JSON",
+                   help="with --merge: brax's side alone from these results files (e.g. brax's SAC beside our TD3, "
+                   "now beside our SAC); their own side of ours is left out")  # fmt: skip
     p.add_argument("--seed-map", default="loop", choices=["loop", "vmap"],
                    help="our seeds: one program called per seed, or one vmapped program (an accelerator's only: "
                    "XLA's CPU compiler stops with a floating point exception on the vmapped MJX program, "
@@ -543,8 +546,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--note", default="", help="a paragraph written under the table (e.g. how to read it)")
     provenance.add_args(p)
     args = p.parse_args(argv)
+    if args.brax_from and not args.merge:
+        p.error("--brax-from: only with --merge (the files whose side of ours is merged)")
     if args.merge:
-        return merge(args.merge, args.out, argv, args.label, args.note)
+        return merge(args.merge, args.out, argv, args.label, args.note, args.brax_from)
     if args.no_brax and args.no_ours:
         p.error("--no-brax and --no-ours: nothing would run; give at most one")
     if not 0 <= args.devices <= jax.device_count():
@@ -681,20 +686,37 @@ def stem_of(out: str, device: str, algo: str, label: str = "") -> str:
     return f"{out}/{device}-brax_tasks" + ("" if algo == "ppo" else f"-{algo}") + (f"-{label}" if label else "")
 
 
-def merge(paths: list[str], out: str, argv: list[str] | None = None, label: str = "", note: str = "") -> dict[str, Any]:
+def _brax_side_only(part: dict[str, Any]) -> dict[str, Any]:
+    """A results file's record with its tasks' brax side alone (``--brax-from``)."""
+    tasks = [{"task": t["task"], "settings": t["settings"], "sides": ["brax"], "brax": t["brax"]}
+             for t in part["tasks"] if "brax" in t]  # fmt: skip
+    return {**part, "tasks": tasks}
+
+
+def merge(paths: list[str], out: str, argv: list[str] | None = None, label: str = "", note: str = "",
+          brax_from: Sequence[str] = ()) -> dict[str, Any]:  # fmt: skip
     """One report of several results files of one algorithm: per task (in the order first seen), our side
     from the last file that ran ours, brax's joined over files of different seeds (:func:`join_seeds`);
     named after the device of the last file that ran ours (each invocation's device is in its provenance);
     their provenance records (a merged file's own sources first) come first in the new file's, then the
-    merge's own. ``note``: a paragraph under the table (a part's note is not carried over)."""
+    merge's own. ``note``: a paragraph under the table (a part's note is not carried over). ``brax_from``:
+    files whose brax side alone is taken (first), e.g. brax's SAC run beside another of our algorithms; their
+    brax peer must be the one of ``paths``' algorithm."""
     parts = []
-    for path in paths:
+    for path in [*brax_from, *paths]:
         with open(path) as f:
             parts.append(json.load(f))
-    algos = {part.get("algo", "ppo") for part in parts}
+    algos = {part.get("algo", "ppo") for part in parts[len(brax_from):]}
     if len(algos) != 1:
         raise SystemExit(f"--merge: the files are of different algorithms ({', '.join(sorted(algos))}); give one's")
-    first = parts[0]
+    peer = ALGOS[next(iter(algos))][1]
+    for path, part in zip(brax_from, parts, strict=False):
+        if ALGOS[part.get("algo", "ppo")][1] != peer:
+            raise SystemExit(f"--brax-from {path}: its brax side is brax's {ALGOS[part.get('algo', 'ppo')][1].upper()}"
+                             f", not the {peer.upper()} beside --merge's {next(iter(algos))}")  # fmt: skip
+    parts[: len(brax_from)] = [_brax_side_only(part) for part in parts[: len(brax_from)]]
+    paths = [*brax_from, *paths]
+    first = parts[len(brax_from)]
     tasks: dict[str, dict[str, Any]] = {}
     for part in parts:
         for row in part["tasks"]:

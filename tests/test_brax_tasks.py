@@ -132,6 +132,31 @@ def test_merge_joins_brax_s_seeds_run_by_different_invocations(tmp_path):
     assert result["tasks"][0]["brax"]["returns"] == [700.0]  # another mode: not joined
 
 
+def test_brax_from_takes_brax_s_side_alone_of_another_algorithm_s_file(tmp_path):
+    """A TD3 file with brax's SAC beside it lends brax's side to a SAC file of ours; TD3's side of ours is left
+    out; a PPO file cannot lend its brax side (brax's PPO is not SAC's peer); --brax-from needs --merge."""
+    sampled = dict(eval_mode="stochastic")
+    td3 = json.loads(open(_part(tmp_path, "td3", "ours", [500.0, 600.0], 10.0, **sampled)).read())
+    brax = json.loads(open(_part(tmp_path, "b", "brax", [300.0, 400.0], 90.0, **sampled)).read())
+    td3["algo"] = "td3"
+    td3["tasks"][0].update(sides=["ours", "brax"], brax=brax["tasks"][0]["brax"])
+    (tmp_path / "td3.json").write_text(json.dumps(td3))
+    sac = json.loads(open(_part(tmp_path, "sac", "ours", [700.0, 800.0, 900.0], 5.0, **sampled)).read())
+    sac["algo"] = "sac"
+    (tmp_path / "sac.json").write_text(json.dumps(sac))
+    result = brax_tasks.main(["--merge", str(tmp_path / "sac.json"), "--brax-from", str(tmp_path / "td3.json"),
+                              "--out", str(tmp_path / "out")])
+    (row,) = result["tasks"]
+    assert result["algo"] == "sac" and row["ours"]["returns"] == [700.0, 800.0, 900.0]
+    assert row["brax"]["returns"] == [300.0, 400.0] and (result["seeds"], result["brax_seeds"]) == (3, 2)
+    assert "| 350.0 ± 50.0 (sampled) | **800.0 ± 81.6** |" in (tmp_path / "out" / "gpu-x-brax_tasks-sac.md").read_text()
+    ppo = _part(tmp_path, "ppo", "brax", [1.0], 1.0)
+    with pytest.raises(SystemExit, match="brax's PPO, not the SAC"):
+        brax_tasks.main(["--merge", str(tmp_path / "sac.json"), "--brax-from", ppo, "--out", str(tmp_path / "x")])
+    with pytest.raises(SystemExit):
+        brax_tasks.main(["--brax-from", ppo, "--out", str(tmp_path / "x")])
+
+
 def test_a_killed_brax_run_keeps_the_seeds_it_finished(tmp_path):
     """brax's side is written after each seed: a file with 1 of 3 seeds says so in the table."""
     brax = _part(tmp_path, "brax", "brax", [900.0], 50.0)
