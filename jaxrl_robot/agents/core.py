@@ -10,7 +10,7 @@
 * Metrics of a chunk: :func:`episode_means` of every device's episode sums, :func:`chunk_metrics`.
 * :func:`make_train_for` — an algorithm's ``make_train(config, env) -> train(key)`` from its
   ``make_trainer``: the whole run under ``lax.scan``.
-* :func:`check_counts` — the integer-count check of every config.
+* :func:`check_counts` — the integer-count check of every config (:mod:`jaxrl_robot.validation`'s).
 
 The config a trainer passes to :func:`setup` has ``validate()``, ``num_envs``, ``unroll_length``,
 ``episode_length`` and ``total_iterations`` (``on_policy.ActorCriticConfig``,
@@ -32,9 +32,9 @@ from brax.envs.base import Env, State
 from flax import struct
 
 from envs_mjx.base import default_episode_length, wrap_for_training
-from envs_mjx.config import ConfigError, check_range
 from jaxrl_robot import parallel
 from jaxrl_robot.types import Metrics, Policy, Trainer
+from jaxrl_robot.validation import ConfigError, check_counts
 
 __all__ = [
     "RunState",
@@ -49,15 +49,6 @@ __all__ = [
     "setup",
     "state_specs",
 ]
-
-
-def check_counts(config: Any, *names: str) -> None:
-    """Raise ``ConfigError`` unless each field in ``names`` is an integer ``>= 1``."""
-    for name in names:
-        value = getattr(config, name)
-        check_range(name, value, 1)
-        if int(value) != value:
-            raise ConfigError(f"{name}={value!r} must be an integer")
 
 
 # ---- the shell of make_trainer ----------------------------------------------------------------

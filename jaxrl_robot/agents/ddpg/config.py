@@ -7,9 +7,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Self
 
-from envs_mjx.config import check_choice, check_range
 from jaxrl_robot.agents.ddpg.networks import OUTPUTS
 from jaxrl_robot.agents.off_policy.config import ANCHORS, NOISES, PRETRAINS, SCHEDULES, OffPolicyConfig
+from jaxrl_robot.validation import check_choice, check_range
 
 __all__ = ["ANCHORS", "NOISES", "PRETRAINS", "SCHEDULES", "DDPGConfig"]
 

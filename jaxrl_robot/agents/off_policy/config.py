@@ -12,10 +12,9 @@ from typing import Any, Self
 
 from brax.envs.base import Env
 
-from envs_mjx.config import ConfigError, check_choice, check_range
-from jaxrl_robot.agents.core import check_counts
 from jaxrl_robot.replay.her import STRATEGIES
 from jaxrl_robot.replay.prioritized import TREES as PER_TREES
+from jaxrl_robot.validation import ConfigError, check_choice, check_counts, check_each, check_integer, check_range
 
 __all__ = ["ANCHORS", "NOISES", "PRETRAINS", "SCHEDULES", "OffPolicyConfig", "with_env_target_clip"]
 
@@ -272,13 +271,10 @@ class OffPolicyConfig:
         for name in ("noise_scale", "noise_mean", "noise_reversion"):
             if not getattr(self, name):
                 raise ConfigError(f"{name}=() must have at least one value")
-        for i, v in enumerate(self.noise_scale):
-            check_range(f"noise_scale[{i}]", v, 0.0)
-        for i, v in enumerate(self.noise_reversion):
-            check_range(f"noise_reversion[{i}]", v, 0.0, 2.0, lo_open=True, hi_open=True)
-        for name in ("actor_hidden", "critic_hidden"):
-            for i, w in enumerate(getattr(self, name)):
-                check_range(f"{name}[{i}]", w, 1)
+        check_each("noise_scale", self.noise_scale, 0.0)
+        check_each("noise_reversion", self.noise_reversion, 0.0, 2.0, lo_open=True, hi_open=True)
+        check_each("actor_hidden", self.actor_hidden, 1)
+        check_each("critic_hidden", self.critic_hidden, 1)
         check_range("reward_scale", self.reward_scale, 0.0, lo_open=True)
         if self.target_clip and (len(self.target_clip) != 2 or self.target_clip[0] > self.target_clip[1]):
             raise ConfigError(f"target_clip={self.target_clip!r} must be () or (lo, hi) with lo <= hi")
@@ -332,9 +328,7 @@ class OffPolicyConfig:
     def _validate_workers(self) -> None:
         """The distributed fields (thesis §4.2)."""
         for name, lo in (("sync_workers", 1), ("collect_workers", 0), ("collect_lanes", 1), ("fetch_every", 1)):
-            check_range(name, getattr(self, name), lo)
-            if int(getattr(self, name)) != getattr(self, name):
-                raise ConfigError(f"{name}={getattr(self, name)!r} must be an integer")
+            check_integer(name, getattr(self, name), lo)
         if self.num_envs % self.sync_workers:
             raise ConfigError(f"num_envs={self.num_envs} must be a multiple of sync_workers ({self.sync_workers})")
         if len(self.collect_noise_factors) not in (0, 1, self.collect_workers):
@@ -342,8 +336,7 @@ class OffPolicyConfig:
                 f"collect_noise_factors={self.collect_noise_factors!r} must have 0, 1 or collect_workers "
                 f"({self.collect_workers}) values"
             )
-        for i, v in enumerate(self.collect_noise_factors):
-            check_range(f"collect_noise_factors[{i}]", v, 0.0)
+        check_each("collect_noise_factors", self.collect_noise_factors, 0.0)
 
     def replace(self, **changes: Any) -> Self:
         """A copy with ``changes`` applied (the original is not modified)."""

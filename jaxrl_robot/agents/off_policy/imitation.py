@@ -31,11 +31,11 @@ import jax.numpy as jnp
 import optax
 from brax.envs.base import Env, State
 
-from envs_mjx.config import ConfigError
 from jaxrl_robot.agents.off_policy.config import OffPolicyConfig
 from jaxrl_robot.imitation import expert_of, imitation_loss, mix_teacher, teacher_share
 from jaxrl_robot.replay import make_uniform_replay
 from jaxrl_robot.types import RunningStats
+from jaxrl_robot.validation import ConfigError
 
 __all__ = ["Demo", "Imitation", "make_imitation"]
 

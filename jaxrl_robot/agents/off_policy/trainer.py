@@ -41,7 +41,6 @@ import jax.numpy as jnp
 from brax.envs.base import Env
 from flax import struct
 
-from envs_mjx.config import ConfigError
 from envs_mjx.playground import adapt
 from jaxrl_robot import parallel
 from jaxrl_robot.agents import core
@@ -54,6 +53,7 @@ from jaxrl_robot.networks import init_running_stats, update_running_stats
 from jaxrl_robot.noise import NoiseState
 from jaxrl_robot.replay import make_her, make_prioritized_replay, make_uniform_replay
 from jaxrl_robot.types import Metrics, Policy, RunningStats, Trainer, Transition
+from jaxrl_robot.validation import ConfigError
 
 __all__ = [
     "GOAL_API",

@@ -6,8 +6,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Self
 
-from envs_mjx.config import check_range
 from jaxrl_robot.agents.off_policy.config import OffPolicyConfig
+from jaxrl_robot.validation import check_range
 
 __all__ = ["SACConfig"]
 
