@@ -50,7 +50,7 @@ def env_settings(args: Args) -> dict[str, Any]:
 
 def preset(args: Args, env: Any) -> PPOConfig:
     """The :class:`PPOConfig` of ``args.preset`` for ``env`` and the ``--policy`` / ``--pretrain`` chosen."""
-    variant = {"policy": args.ppo.policy, "pretrain": args.ppo.pretrain}
+    variant = {"policy": args.ppo.policy, "pretrain": args.ppo.pretrain, "devices": args.devices}
     return ppo_preset(args.preset, args.env, common.episode_length(env), int(env.action_size), **variant)[0]
 
 
