@@ -11,19 +11,18 @@ else 3 cm).
 OpenGL: ``$MUJOCO_GL`` picks the backend (``egl``: EGL, GPUs and Mesa's software EGL; ``osmesa``: OSMesa,
 CPUs; ``glfw``: a window system); unset, EGL when ``libEGL`` is found, else OSMesa.  A backend that cannot
 start is a :class:`RenderError` naming the library and its Debian package (``libegl1``, ``libosmesa6``).
+The drawing is :mod:`jaxrl_robot.rendering`'s (re-exported here).
 GIFs are written with Pillow (installed with matplotlib), MP4s with ``imageio`` and ``imageio-ffmpeg`` (the
 ``video`` extra: ``pip install 'jaxrl-robot[video]'``).
 """
 
 from __future__ import annotations
 
-import contextlib
-import ctypes.util
 import importlib
 import math
 import os
 import warnings
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import jax
@@ -32,6 +31,7 @@ import numpy as np
 from brax.envs.base import Env
 
 from jaxrl_robot.evaluation import freeze
+from jaxrl_robot.rendering import GL_LIBRARIES, RenderError, gl_backend, gl_context, mujoco_model, render_frames
 from jaxrl_robot.types import Policy, RecurrentPolicy, as_recurrent
 
 __all__ = [
@@ -52,18 +52,8 @@ __all__ = [
 VIDEO_FORMATS = (".gif", ".mp4")
 """File suffixes :func:`write_video` writes."""
 
-GL_LIBRARIES = {"egl": ("libEGL", "libegl1"), "osmesa": ("libOSMesa", "libosmesa6"), "glfw": ("GLFW", "libglfw3")}
-"""``MUJOCO_GL`` backend → (the library it needs, its Debian/Ubuntu package)."""
-
 MAX_FPS = 50.0
 """Frames per second a video plays at most by default (GIF's frame times are whole hundredths of a second)."""
-
-GOAL_RGBA = np.array([0.1, 0.35, 0.95, 0.45], np.float32)
-"""Colour of the goal marker (blue, translucent: the end effector shows inside it)."""
-
-
-class RenderError(RuntimeError):
-    """A video cannot be made here (no OpenGL library, no MP4 writer, an env without a model to draw); one line."""
 
 
 def check_video_path(path: str) -> str:
@@ -179,132 +169,6 @@ def _every(items: list, stride: int) -> list:
     return picked + items[-1:] if (len(items) - 1) % stride else picked
 
 
-# ---- drawing with MuJoCo --------------------------------------------------------------------------------
-
-
-def mujoco_model(env: Env) -> Any:
-    """The ``mujoco.MjModel`` of ``env`` or of an env it wraps (``mj_model``, brax's ``sys.mj_model``); None if none."""
-    seen = set()
-    while env is not None and id(env) not in seen:
-        seen.add(id(env))
-        for owner in (env, getattr(env, "sys", None)):
-            model = getattr(owner, "mj_model", None)
-            if model is not None:
-                return model
-        env = getattr(env, "env", None) or getattr(env, "_env", None)
-    return None
-
-
-def gl_backend() -> str:
-    """The OpenGL backend to render with: ``$MUJOCO_GL`` (``egl``, ``osmesa`` or ``glfw``); unset, ``egl`` when
-    ``libEGL`` is found, else ``osmesa`` when ``libOSMesa`` is.
-
-    Raises:
-      RenderError: ``$MUJOCO_GL`` names another backend, or unset and neither library is found.
-    """
-    chosen = os.environ.get("MUJOCO_GL", "").strip().lower()
-    if chosen:
-        if chosen not in GL_LIBRARIES:
-            raise RenderError(f"MUJOCO_GL={chosen!r} cannot render offscreen; valid: {', '.join(GL_LIBRARIES)}")
-        return chosen
-    if ctypes.util.find_library("EGL"):
-        return "egl"
-    if ctypes.util.find_library("OSMesa"):
-        return "osmesa"
-    raise RenderError(
-        "cannot render: no OpenGL library for offscreen rendering found; install libEGL (Debian/Ubuntu: "
-        "apt-get install libegl1) or libOSMesa (apt-get install libosmesa6, with MUJOCO_GL=osmesa)"
-    )
-
-
-@contextlib.contextmanager
-def _gl_context(width: int, height: int) -> Iterator[str]:
-    """A current OpenGL context of :func:`gl_backend` while the block runs; yields the backend's name.
-
-    Raises:
-      RenderError: the backend cannot start (its library is missing or unusable), naming the library and package.
-    """
-    backend = gl_backend()
-    try:
-        context = importlib.import_module(f"mujoco.{backend}").GLContext(width, height)
-        context.make_current()
-    except Exception as e:  # ImportError, OSError, RuntimeError or PyOpenGL's errors: all mean no usable GL
-        library, package = GL_LIBRARIES[backend]
-        cause = (str(e).strip().splitlines() or [type(e).__name__])[0]
-        raise RenderError(
-            f"cannot render with MUJOCO_GL={backend}: {library} is missing or unusable ({cause}); "
-            f"Debian/Ubuntu: apt-get install {package}"
-        ) from None
-    try:
-        yield backend
-    finally:
-        context.free()
-
-
-def render_frames(
-    model: Any,
-    frames: Sequence[dict[str, Any]] | Iterator[dict[str, Any]],
-    width: int,
-    height: int,
-    goal_radius: float = 0.03,
-) -> list[np.ndarray]:
-    """``[height, width, 3]`` uint8 pictures of ``model`` in each frame's ``qpos`` (and mocap poses), with a
-    sphere of ``goal_radius`` (m) at the frame's ``goal`` if it has one.
-
-    Raises:
-      RenderError: no OpenGL (:func:`gl_backend`), or a ``qpos`` that is not the model's.
-    """
-    import mujoco
-
-    with _gl_context(width, height):
-        model = _with_offscreen_size(model, width, height)
-        data = mujoco.MjData(model)
-        context = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_150)
-        try:
-            mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, context)
-            scene, option, camera = mujoco.MjvScene(model, maxgeom=10_000), mujoco.MjvOption(), mujoco.MjvCamera()
-            mujoco.mjv_defaultFreeCamera(model, camera)  # on the model's centre, 1.5 extents away
-            camera.elevation = -25.0  # MuJoCo's -45 looks down so steeply that what is high leaves the frame
-            rect = mujoco.MjrRect(0, 0, width, height)
-            pixels = np.empty((height, width, 3), np.uint8)
-            out = []
-            for frame in frames:
-                qpos = np.asarray(frame["qpos"]) if frame.get("qpos") is not None else None
-                if qpos is None or qpos.shape != (model.nq,):
-                    shape = None if qpos is None else qpos.shape
-                    raise RenderError(f"cannot render: the env's state has qpos {shape}, its model {model.nq} values")
-                data.qpos[:] = qpos
-                if "mocap_pos" in frame:
-                    data.mocap_pos[:], data.mocap_quat[:] = frame["mocap_pos"], frame["mocap_quat"]
-                mujoco.mj_forward(model, data)
-                mujoco.mjv_updateScene(model, data, option, None, camera, mujoco.mjtCatBit.mjCAT_ALL, scene)
-                if "goal" in frame and scene.ngeom < scene.maxgeom:
-                    goal = np.asarray(frame["goal"], np.float64)
-                    size = np.array([goal_radius, 0.0, 0.0])
-                    mujoco.mjv_initGeom(scene.geoms[scene.ngeom], mujoco.mjtGeom.mjGEOM_SPHERE, size, goal,
-                                        np.eye(3).ravel(), GOAL_RGBA)  # fmt: skip
-                    scene.ngeom += 1
-                mujoco.mjr_render(rect, scene, context)
-                mujoco.mjr_readPixels(pixels, None, rect, context)
-                out.append(np.flipud(pixels).copy())
-        finally:
-            context.free()
-    return out
-
-
-def _with_offscreen_size(model: Any, width: int, height: int) -> Any:
-    """``model``, or a copy whose offscreen buffer holds ``width × height`` (the model itself is not changed)."""
-    import copy
-
-    size = model.vis.global_
-    if size.offwidth >= width and size.offheight >= height:
-        return model
-    model = copy.deepcopy(model)
-    model.vis.global_.offwidth = max(size.offwidth, width)
-    model.vis.global_.offheight = max(size.offheight, height)
-    return model
-
-
 def check_rendering(env: Env) -> None:
     """Check that :func:`episode_video` can draw ``env`` here (before any episode is run).
 
@@ -318,7 +182,7 @@ def check_rendering(env: Env) -> None:
         return
     if mujoco_model(env) is None:
         raise RenderError(f"cannot render {type(env).__name__}: it has no MuJoCo model (mj_model)")
-    with _gl_context(16, 16):
+    with gl_context(16, 16):
         pass
 
 

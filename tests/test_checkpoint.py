@@ -210,7 +210,7 @@ def test_disk_full_while_saving_removes_the_partial_checkpoint_and_keeps_the_oth
     if where == "record":
         monkeypatch.setattr(ocp.JsonCheckpointHandler, "_save_fn", no_space_async)
     else:
-        monkeypatch.setattr(ck, "_write_checksums", no_space)
+        monkeypatch.setattr(ck.integrity, "write_checksums", no_space)
     ckpt = Checkpointer(str(saved))
     files = [os.path.join(r, n) for r, _, names in os.walk(saved / "3") for n in names]
     with pytest.raises(CheckpointWriteError) as info:
@@ -235,15 +235,15 @@ def test_disk_full_while_saving_removes_the_partial_checkpoint_and_keeps_the_oth
 def test_os_errors_are_found_in_orbax_and_tensorstore_errors():
     text = ('RESOURCE_EXHAUSTED: Error writing "a.w/0" in OCDBT database at local file "/x/": Failed to write '
             "410103 bytes to file 17: No space left on device [os_error_code='28']")  # fmt: skip
-    assert ck._os_error_code(ValueError(text)) == errno.ENOSPC
+    assert ck.integrity.os_error_code(ValueError(text)) == errno.ENOSPC
     try:
         try:
             raise OSError(errno.EDQUOT, "quota")
         except OSError as e:
             raise RuntimeError("wrapped") from e
     except RuntimeError as e:
-        assert ck._os_error_code(e) == errno.EDQUOT
-    assert ck._os_error_code(ValueError("a shape mismatch")) is None
+        assert ck.integrity.os_error_code(e) == errno.EDQUOT
+    assert ck.integrity.os_error_code(ValueError("a shape mismatch")) is None
 
 
 HOLDER = """

@@ -19,84 +19,39 @@ Trust:
   :class:`CheckpointWriteError` naming the folder and the space the previous checkpoint took;
 * :class:`DirectoryLock` keeps a second process from writing a run directory at the same time.
 
-Every error's message is one line.
+Every error's message is one line.  The checksums, the errors and the lock are
+:mod:`jaxrl_robot.checkpoint.integrity`'s (re-exported here).
 """
 
 from __future__ import annotations
 
 import contextlib
 import errno
-import fcntl
-import hashlib
-import json
-import logging
 import os
-import re
 import shutil
-import threading
-import time
-from collections.abc import Iterator
 from typing import Any, NamedTuple
 
 import jax
 import numpy as np
 import orbax.checkpoint as ocp
 
-__all__ = [
-    "CHECKSUMS",
-    "CheckpointDamagedError",
-    "CheckpointError",
-    "CheckpointMismatchError",
-    "CheckpointWriteError",
-    "Checkpointer",
-    "DirectoryInUseError",
-    "DirectoryLock",
-    "Restored",
-]
+from jaxrl_robot.checkpoint import integrity
+from jaxrl_robot.checkpoint.integrity import (  # noqa: F401  (re-exported: integrity.__all__)
+    CHECKSUMS,
+    CheckpointDamagedError,
+    CheckpointError,
+    CheckpointMismatchError,
+    CheckpointWriteError,
+    DirectoryInUseError,
+    DirectoryLock,
+)
 
-CHECKSUMS = "checksums.json"
-"""File of a step folder listing ``{relative path: {"size", "sha256"}}`` of every other file in it."""
-
-MAX_LISTED = 3
-"""Differences named in a :class:`CheckpointMismatchError` (the rest are counted)."""
+__all__ = ["Checkpointer", "Restored", *integrity.__all__]
 
 RENAMED = {"termination": "terminated"}
 """Names of state fields that earlier versions saved under another name (now -> then); a checkpoint
 holding the old name restores into a state with the new one. ``terminated``: the termination of a
 replay memory's rows before :class:`jaxrl_robot.types.Transition` became the one transition type."""
-
-
-class CheckpointError(Exception):
-    """A checkpoint cannot be written or read; the message is one line naming the folder or step."""
-
-
-class CheckpointDamagedError(CheckpointError):
-    """A checkpoint's files are missing, altered or unreadable (``step``, ``reason``)."""
-
-    def __init__(self, step: int, reason: str, message: str | None = None):
-        super().__init__(message or f"checkpoint {step} is damaged ({reason})")
-        self.step, self.reason = step, reason
-
-
-class CheckpointMismatchError(CheckpointError):
-    """The state to restore into has other arrays than the checkpoint (``step``, ``differences``)."""
-
-    def __init__(self, step: int, differences: list[str], message: str | None = None):
-        self.step, self.differences = step, differences
-        super().__init__(message or f"checkpoint {step} does not match the state: {self.listed()}")
-
-    def listed(self) -> str:
-        """The first :data:`MAX_LISTED` differences and how many more, in one line."""
-        more = len(self.differences) - MAX_LISTED
-        return "; ".join(self.differences[:MAX_LISTED]) + (f"; {more} more" if more > 0 else "")
-
-
-class CheckpointWriteError(CheckpointError):
-    """A save failed (disk full, quota, any ``OSError``); its partial files are removed, older steps kept."""
-
-
-class DirectoryInUseError(CheckpointError):
-    """Another process holds the :class:`DirectoryLock` of the directory."""
 
 
 class Restored(NamedTuple):
@@ -145,18 +100,18 @@ class Checkpointer:
         state = jax.tree.map(lambda x: x if np.size(x) else None, state)
         args = ocp.args.Composite(state=ocp.args.StandardSave(state), record=ocp.args.JsonSave(record))
         existed = os.path.exists(self._step_dir(step))  # then a failure must not remove it
-        with _held_error_logs():
+        with integrity.held_error_logs():
             try:
                 self._manager.save(step, args=args, force=True)
                 self._manager.wait_until_finished()
                 if jax.process_index() == 0:
-                    _write_checksums(self._step_dir(step))
+                    integrity.write_checksums(self._step_dir(step))
             except BaseException as e:
                 with contextlib.suppress(Exception):
                     self._manager.wait_until_finished()
-                _join_writer_threads()  # orbax's threads may still be writing the step
+                integrity.join_writer_threads()  # orbax's threads may still be writing the step
                 self._discard(step, keep_folder=existed)
-                code = _os_error_code(e)
+                code = integrity.os_error_code(e)
                 if code is None:
                     raise
                 raise CheckpointWriteError(self._write_failure(step, code)) from None
@@ -173,34 +128,13 @@ class Checkpointer:
         return sorted(self._manager.all_steps())
 
     def verify(self, step: int) -> bool:
-        """Check the files of ``step`` against its :data:`CHECKSUMS`.
+        """Check the files of ``step`` against its :data:`CHECKSUMS` (:func:`~.integrity.verify_checksums`):
+        True if they match, False if the step has none (an earlier version wrote it).
 
-        Returns:
-          True if they match, False if the step has no checksums (written by an earlier version).
         Raises:
           CheckpointDamagedError: a listed file is missing, of another size or another SHA-256.
         """
-        folder = self._step_dir(step)
-        path = os.path.join(folder, CHECKSUMS)
-        if not os.path.isdir(folder):
-            raise CheckpointDamagedError(step, f"no folder {folder}")
-        if not os.path.exists(path):
-            return False
-        try:
-            with open(path) as f:
-                listed = json.load(f)["files"]
-        except (OSError, ValueError, KeyError, TypeError) as e:
-            raise CheckpointDamagedError(step, f"{CHECKSUMS} unreadable: {_short(e)}") from None
-        for name, want in sorted(listed.items()):
-            file = os.path.join(folder, name)
-            if not os.path.isfile(file):
-                raise CheckpointDamagedError(step, f"{name} is missing")
-            size = os.path.getsize(file)
-            if size != want["size"]:
-                raise CheckpointDamagedError(step, f"{name} has {size} bytes, {want['size']} were written")
-            if _sha256(file) != want["sha256"]:
-                raise CheckpointDamagedError(step, f"{name} does not match its SHA-256")
-        return True
+        return integrity.verify_checksums(step, self._step_dir(step))
 
     def differences(self, step: int, target: Any) -> list[str]:
         """How the arrays of ``target`` differ from those saved at ``step``, by path (empty: they match).
@@ -232,7 +166,7 @@ class Checkpointer:
             tree = self._manager.item_metadata(int(step))["state"]
             tree = getattr(tree, "tree", tree)
         except Exception as e:  # the metadata file is unreadable
-            raise CheckpointDamagedError(step, f"metadata unreadable: {_short(e)}") from None
+            raise CheckpointDamagedError(step, f"metadata unreadable: {integrity.short_reason(e)}") from None
         if tree is None:
             raise CheckpointDamagedError(step, "no metadata of the state")
         return tree
@@ -266,10 +200,10 @@ class Checkpointer:
                                     self._saved_metadata(step))  # fmt: skip
         args = ocp.args.Composite(state=ocp.args.StandardRestore(abstract), record=ocp.args.JsonRestore())
         try:
-            with _held_error_logs():
+            with integrity.held_error_logs():
                 out = self._manager.restore(step, args=args)
         except Exception as e:  # orbax / tensorstore: a file it could not read
-            raise CheckpointDamagedError(step, _short(e)) from None
+            raise CheckpointDamagedError(step, integrity.short_reason(e)) from None
         state = out["state"]
         if target is not None:
             saved = {_names(p): v for p, v in jax.tree_util.tree_flatten_with_path(state)[0]}
@@ -281,7 +215,7 @@ class Checkpointer:
     def read_record(self, step: int) -> dict[str, Any]:
         """The record saved with ``step`` alone (not the state); ``{}`` if it cannot be read."""
         try:
-            with _held_error_logs():
+            with integrity.held_error_logs():
                 out = self._manager.restore(int(step), args=ocp.args.Composite(record=ocp.args.JsonRestore()))
         except Exception:  # a damaged record: nothing to tell
             return {}
@@ -365,62 +299,13 @@ class Checkpointer:
             earlier = [s for s in self._manager.all_steps() if s != step]
             needs = []
             if earlier:
-                needs.append(f"checkpoint {max(earlier)} took {_megabytes(_folder_size(self._step_dir(max(earlier))))}")
+                took = integrity.folder_size(self._step_dir(max(earlier)))
+                needs.append(f"checkpoint {max(earlier)} took {integrity.megabytes(took)}")
             with contextlib.suppress(OSError):
-                needs.append(f"{_megabytes(shutil.disk_usage(self.directory).free)} free")
+                needs.append(f"{integrity.megabytes(shutil.disk_usage(self.directory).free)} free")
             if needs:
                 text += f" ({', '.join(needs)})"
         return text + "; the partial checkpoint is removed, earlier ones are intact"
-
-
-class DirectoryLock:
-    """An exclusive ``flock`` on ``directory/.lock`` while a process writes ``directory``.
-
-    The kernel releases the lock when its process ends in any way (``kill -9`` included), so a
-    stale lock file never blocks. The file holds the holder's pid, for the message of a second writer.
-    Use as a context manager, or :meth:`acquire` / :meth:`release`.
-    """
-
-    NAME = ".lock"
-
-    def __init__(self, directory: str):
-        self.directory = directory
-        self.path = os.path.join(directory, self.NAME)
-        self._fd: int | None = None
-
-    def acquire(self) -> DirectoryLock:
-        """Take the lock.
-
-        Raises:
-          DirectoryInUseError: another process (or another ``DirectoryLock`` here) holds it.
-        """
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError as e:
-            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
-            os.close(fd)
-            if e.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
-                raise
-            raise DirectoryInUseError(
-                f"run directory {self.directory} is in use by another process (pid {holder})"
-            ) from None
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
-        self._fd = fd
-        return self
-
-    def release(self) -> None:
-        """Give the lock back (closing the file releases it); no-op if not held."""
-        if self._fd is not None:
-            os.close(self._fd)
-            self._fd = None
-
-    def __enter__(self) -> DirectoryLock:
-        return self.acquire()
-
-    def __exit__(self, *exc: Any) -> None:
-        self.release()
 
 
 def _names(path: tuple) -> tuple:
@@ -460,102 +345,3 @@ def _shape_text(x: Any) -> str:
     return f"{shape} {dtype}"
 
 
-def _sha256(path: str) -> str:
-    with open(path, "rb") as f:
-        return hashlib.file_digest(f, "sha256").hexdigest()
-
-
-def _write_checksums(folder: str) -> None:
-    """Write :data:`CHECKSUMS` of every file under ``folder`` (atomically: a temporary file renamed)."""
-    files = {}
-    for root, _, names in os.walk(folder):
-        for name in names:
-            path = os.path.join(root, name)
-            rel = os.path.relpath(path, folder)
-            if rel != CHECKSUMS:
-                files[rel] = {"size": os.path.getsize(path), "sha256": _sha256(path)}
-    tmp = os.path.join(folder, CHECKSUMS + ".tmp")
-    with open(tmp, "w") as f:
-        json.dump({"algorithm": "sha256", "files": dict(sorted(files.items()))}, f, indent=1)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, os.path.join(folder, CHECKSUMS))
-
-
-def _folder_size(folder: str) -> int:
-    """Bytes the files under ``folder`` take on disk (allocated blocks: a checkpoint has many small files)."""
-    stats = [os.stat(os.path.join(r, n)) for r, _, names in os.walk(folder) for n in names]
-    return sum(max(s.st_size, getattr(s, "st_blocks", 0) * 512) for s in stats)
-
-
-def _megabytes(n: int) -> str:
-    return f"{n / 1e6:.1f} MB" if n >= 1e5 else f"{n / 1e3:.1f} kB"
-
-
-_WHERE = re.compile(r' in OCDBT database at local file "[^"]*"')
-_OS_CODE = re.compile(r"os_error_code='?(\d+)")
-
-
-def _os_error_code(e: BaseException) -> int | None:
-    """The errno of an ``OSError`` in ``e``'s chain, or of a tensorstore error (``os_error_code='28'``)
-    that orbax raises as ``ValueError``; 0 for an ``OSError`` without one; None if it is no OS error."""
-    seen = set()
-    while e is not None and id(e) not in seen:
-        seen.add(id(e))
-        if isinstance(e, OSError):
-            return e.errno or 0
-        match = _OS_CODE.search(str(e))
-        if match:
-            return int(match.group(1))
-        e = e.__cause__ or e.__context__
-    return None
-
-
-def _join_writer_threads(timeout: float = 60.0) -> None:
-    """Wait (up to ``timeout`` s in all) for orbax's writer threads that a failed save leaves running:
-    until they end they may still create files of the step."""
-    try:
-        from orbax.checkpoint._src.futures.future import _SignalingThread as writer
-    except ImportError:  # another orbax: nothing known to wait for
-        return
-    deadline = time.monotonic() + timeout
-    for thread in threading.enumerate():
-        if isinstance(thread, writer) and thread is not threading.current_thread():
-            thread.join(max(0.0, deadline - time.monotonic()))
-
-
-def _short(e: BaseException, limit: int = 160) -> str:
-    """The first line of the message of the first cause of ``e`` (tensorstore's reason under orbax's
-    wrapping), at most ``limit`` characters."""
-    seen = {id(e)}
-    while (e.__cause__ or e.__context__) is not None and id(e.__cause__ or e.__context__) not in seen:
-        e = e.__cause__ or e.__context__
-        seen.add(id(e))
-    text = (str(e).strip().splitlines() or [type(e).__name__])[0]
-    text = _WHERE.sub("", text)  # the checkpoint's own path: the message names the step already
-    return text if len(text) <= limit else text[: limit // 2 - 2] + " … " + text[-(limit // 2 - 1) :]
-
-
-@contextlib.contextmanager
-def _held_error_logs() -> Iterator[list[logging.LogRecord]]:
-    """Hold back the ERROR records orbax's worker threads log (absl) while the block runs.
-
-    Orbax logs a failure's traceback from its thread and then raises it; the caller turns the raised
-    error into one line.  The held records are logged when the block ends normally, dropped when it raises.
-    """
-    logger = logging.getLogger("absl")
-    held: list[logging.LogRecord] = []
-
-    def keep(record: logging.LogRecord) -> bool:
-        if record.levelno >= logging.ERROR:
-            held.append(record)
-            return False
-        return True
-
-    logger.addFilter(keep)
-    try:
-        yield held
-    finally:
-        logger.removeFilter(keep)
-    for record in held:
-        logger.handle(record)
