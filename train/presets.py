@@ -6,11 +6,11 @@ PPO presets:
   32 transitions, 2000 episodes' worth of steps (Table 5.2, §5.4); mobile robot: N = 16, 8 updates
   on 32 of 64, 3000 episodes, piecewise RSI + shrinking early-termination limit (Table 5.3, §5.5).
   The arm keeps the thesis's batch-norm actor (batch renormalisation, moving averages decaying
-  at 0.999): 79 / 84 / 83 % test success on arm7 over seeds 0-2 (plain batch-norm: 10 / 21 / 39 %;
-  ``--no-batch-norm``: 95 / 96 / 96 %; ``benchmarks/results/cpu-2core-ppo_arm7_thesis_bn.md``).
+  at 0.999).
 * ``cpu`` — a few dozen lanes, sized for a 2-core CPU (the default without an accelerator);
   larger learning rates and no batch-norm (more stable here than the thesis's BN actor).
-* ``fast`` — thousands of lanes for one GPU (the default with an accelerator).
+* ``fast`` — thousands of lanes per GPU (the default with an accelerator); PPO's on ``arm7`` grows with the
+  devices (:func:`arm_fast_on_devices`).
 * ``brax`` (PPO, DDPG and TD3) — PPO: brax's published PPO settings for its standard tasks
   (:data:`BRAX_PPO`, converted by :func:`brax_ppo_config`, with our fields of :data:`BRAX_PPO_TUNED`
   over the tasks it names); DDPG and TD3: brax's SAC lanes and memory with TD3's own update settings and
@@ -24,6 +24,9 @@ PPO presets:
 
 Environment settings (reward, physics mode, …) stay apart from algorithm settings: a preset
 returns a :class:`PPOConfig` and env overrides separately.
+
+The presets are settings only; the measurements that chose them are in
+``benchmarks/results/why-presets.md``, by section.
 """
 
 from __future__ import annotations
@@ -40,43 +43,91 @@ from jaxrl_robot.agents.ddpg import DDPGConfig
 from jaxrl_robot.agents.ppo import PPOConfig
 
 __all__ = [
+    "a2c_preset",
+    "arm_fast_on_devices",
+    "ARM_FAST_STEPS",
     "BRAX_COLUMNS",
     "BRAX_PPO",
+    "brax_ppo_config",
     "BRAX_PPO_SEGMENTS",
     "BRAX_PPO_TUNED",
     "BRAX_SAC",
     "BRAX_SAC_COLUMNS",
-    "BRAX_SAC_TUNED",
-    "TD3_OWN",
-    "a2c_preset",
-    "brax_ppo_config",
     "brax_sac_ddpg_config",
     "brax_sac_task",
+    "BRAX_SAC_TUNED",
+    "brax_task",
     "ddpg_config_of_sac_row",
+    "ddpg_env_overrides",
+    "DDPG_PRESETS",
+    "distribute",
+    "lstm_variant",
+    "PLAYGROUND_PEERS",
     "playground_ppo_config",
     "playground_row",
     "playground_sac_ddpg_config",
     "playground_task",
     "ppo_config_of_row",
-    "distribute",
-    "DDPG_PRESETS",
-    "PPO_PRESETS",
     "ppo_env_overrides",
-    "ddpg_env_overrides",
-    "RACING_ENV",
-    "UNICYCLE_A_P",
-    "UNICYCLE_A_P_FAST",
-    "lstm_variant",
     "ppo_preset",
+    "PPO_PRESETS",
+    "PRESETS",
+    "RACING_ENV",
     "resolve_preset",
-    "two_stage_variant",
+    "TD3_OWN",
     "tracking_schedule",
+    "two_stage_variant",
+    "UNICYCLE_A_P",
     "unicycle_a_p",
+    "UNICYCLE_A_P_FAST",
 ]
 
 PPO_PRESETS = ("auto", "thesis", "cpu", "fast", "brax", "playground")
 PRESETS = ("auto", "thesis", "cpu", "fast")
 """The presets of every algorithm; ``brax`` and ``playground`` are PPO's, DDPG's and TD3's (:data:`DDPG_PRESETS`)."""
+
+
+def resolve_preset(name: str, env_name: str | None = None, algo: str = "ppo") -> str:
+    """``auto`` → ``brax`` for a PPO run on a task of :data:`BRAX_PPO` or a DDPG / TD3 run on one of
+    :data:`BRAX_SAC`, ``playground`` for such a run on a ``playground:<Name>`` env with MuJoCo Playground's
+    settings (:func:`playground_task`), else ``fast`` on an accelerator backend, else ``cpu``; other names
+    unchanged (validated: ``brax`` and ``playground`` are PPO's, DDPG's and TD3's)."""
+    valid, table = {"ppo": (PPO_PRESETS, BRAX_PPO), "ddpg": (DDPG_PRESETS, BRAX_SAC), "td3": (DDPG_PRESETS, BRAX_SAC),
+                    "sac": (DDPG_PRESETS, BRAX_SAC)}.get(algo, (PRESETS, {}))  # fmt: skip
+    if name not in valid:
+        raise ValueError(f"unknown preset {name!r}; valid presets: {', '.join(valid)}")
+    if name == "auto":
+        if env_name is not None and _brax_task_of(env_name, table):
+            return "brax"
+        if playground_task(env_name, algo):
+            return "playground"
+        return "fast" if jax.default_backend() in ("gpu", "cuda", "rocm", "tpu") else "cpu"
+    return name
+
+
+def _family(env_name: str) -> str:
+    """``arm``, ``tracking``, ``racing`` or ``other``: the family of ``env_name`` whose presets it takes."""
+    base = env_name.split(":")[-1]
+    if base in ("arm7", "arm7_precise"):
+        return "arm"
+    if base in ("unicycle", "scara"):
+        return "tracking"
+    if base == "racecar":
+        return "racing"
+    return "other"
+
+
+def _precise_arm(env_name: str) -> bool:
+    """Whether ``env_name`` is ``arm7_precise`` (1 cm goal threshold): PPO and A2C/A3C learn σ there
+    (why: ``benchmarks/results/why-presets.md`` § PPO arm7_precise)."""
+    return env_name.split(":")[-1] == "arm7_precise"
+
+
+DDPG_PRESETS = ("auto", "thesis", "cpu", "fast", "brax", "playground")
+"""DDPG's and TD3's presets: ``brax`` is :func:`brax_sac_ddpg_config` of the env's :data:`BRAX_SAC` task
+(hopper's row for other envs, with the env's own episode length); ``playground`` is
+:func:`playground_sac_ddpg_config` of a ``playground:<Name>`` env."""
+
 
 BRAX_COLUMNS = ("num_timesteps", "num_envs", "batch_size", "num_minibatches", "unroll_length",
                 "num_updates_per_batch", "discounting", "entropy_cost", "reward_scaling", "learning_rate",
@@ -127,13 +178,8 @@ def brax_ppo_config(task: str, action_size: int, segments: bool | None = None, t
       from every lane); actor and critic each take as many steps as brax's passes cover, the critic
       on each batch first (``critic_first``), which brings the advantages nearer to brax's.
 
-    Measured at 5 M env steps, 3 seeds, sampled actions, against brax's own PPO
-    (``benchmarks/results/*brax_tasks-5M*``): brax's update — halfcheetah 1858 ± 272 against 1704 ±
-    316, reacher with the row alone −20.7 ± 0.7 against −20.5 ± 1.0 (both on H200s; the thesis's update:
-    1295 ± 79 and −22.6 ± 0.7; reacher's tuned fields: :data:`BRAX_PPO_TUNED`); the thesis's update —
-    hopper 492 ± 89 against 407 ± 75 (brax's update: 363 ± 16),
-    inverted_double_pendulum 9169 ± 212 against 2218 ± 1437 (brax's update: 4133 ± 1697),
-    inverted_pendulum 1000 on every side.
+    Which update each task takes, as measured beside brax's PPO: ``benchmarks/results/why-presets.md``
+    § brax PPO update.
     """
     if task not in BRAX_PPO:
         raise KeyError(f"no brax PPO settings for {task!r}; known: {', '.join(BRAX_PPO)}")
@@ -182,12 +228,7 @@ BRAX_PPO_TUNED: dict[str, dict[str, float | str]] = {
 """Our :class:`PPOConfig` fields over a task's converted :data:`BRAX_PPO` row (:func:`brax_ppo_config`'s
 ``tuned``) on the tasks where they take ours past brax's own PPO and the row alone does not.
 
-reacher at 5 M env steps (7 372 800), sampled actions, on one H200 host
-(``benchmarks/results/gpu-nvidia_h200-brax_tasks-5M-reacher-tuned.md``): 8 vmapped seeds −14.5 ± 0.3,
-every seed ahead of each of brax's 11 (−33.9 ± 36.4, median −21.2; −22.5 ± 3.0 without its seed 3, which
-fell from −27.7 to −148.6 at the last evaluation and reached −21.2 when run again). With the row alone
-ours had −21.3 ± 1.0 (8 seeds, ``…-5M-reacher-row.md``); with the learning-rate change alone −16.8 ± 0.7
-(8 seeds), with the clipping alone −18.6 ± 0.8 (5 seeds; ``…-5M-reacher-sweep.md``)."""
+reacher's, as measured: ``benchmarks/results/why-presets.md`` § brax PPO tuned."""
 
 BRAX_SAC_COLUMNS = ("num_timesteps", "num_envs", "batch_size", "grad_updates_per_step", "discounting",
                     "reward_scaling", "learning_rate", "episode_length", "max_replay_size", "min_replay_size")
@@ -213,11 +254,7 @@ one update per env step on mini-batches of 256 at learning rate 3e-4, uniform ra
 learning starts, γ 0.99 on unscaled rewards, exploration σ 0.1. :func:`brax_sac_ddpg_config` puts them
 in place of the row's unless ``own_settings=False``, with a task's :data:`BRAX_SAC_TUNED` entries over them.
 
-Measured alone with 8 vmapped seeds on one H200 host (``benchmarks/results/gpu-nvidia_h200-brax_tasks-td3-*``),
-at brax's SAC step counts (200 192 and 100 352): hopper 1286 ± 845 and 1608 ± 782 in two runs of the same
-seeds, walker2d 421 ± 185 (``…-td3-sweep.md``). At 209 664 and 104 832 steps: hopper 1992 ± 950
-(σ 0.2: 932 ± 398; σ 0.3: 1581 ± 1083; with the row's γ 0.997 and reward × 30, 3 seeds on H100s: 1006 ± 6,
-upright without moving on); walker2d 381 ± 92 (with the row's γ 0.997 and reward × 5: 670 ± 288)."""
+As measured: ``benchmarks/results/why-presets.md`` § TD3 own settings."""
 
 BRAX_SAC_TUNED: dict[str, dict[str, float]] = {
     # two updates per env step (an update-to-data ratio of 2) instead of TD3's one
@@ -227,13 +264,7 @@ BRAX_SAC_TUNED: dict[str, dict[str, float]] = {
 """Entries of :data:`TD3_OWN` replaced per task (:func:`brax_sac_ddpg_config`'s ``tuned``), measured with
 TD3 (DDPG takes them too, unmeasured).
 
-At brax's SAC step counts, mean action, on H200s (``benchmarks/results/gpu-nvidia_h200-brax_tasks-td3-*``),
-16 vmapped seeds against brax's SAC (``…-td3-tuned.md``): hopper 2414 ± 828 against 1925 ± 687 (8 seeds),
-walker2d 497 ± 171 against 275 ± 77 (7 seeds). Chosen from a sweep of 7 settings on hopper, 8 seeds each
-(``…-td3-sweep.md``): two updates per env step 2478 ± 946, critic learning rate 1e-3 1882 ± 1058,
-τ 0.01 1586 ± 1045, mini-batches of 512 1547 ± 876, TD3's own 1286 ± 845, learning from 25 600 steps
-1035 ± 410, observations unnormalised 690 ± 432; on walker2d's 8 keys 832 ± 696 against TD3's own
-421 ± 185."""
+Why: ``benchmarks/results/why-presets.md`` § brax SAC tuned."""
 
 
 def brax_sac_ddpg_config(task: str, own_settings: bool = True, tuned: bool = True, **row: float) -> DDPGConfig:
@@ -381,24 +412,6 @@ def playground_sac_ddpg_config(env_name: str, own_settings: bool = True, **row: 
     return ddpg_config_of_sac_row(_playground_row_for(env_name, "sac", row), TD3_OWN if own_settings else None)
 
 
-def resolve_preset(name: str, env_name: str | None = None, algo: str = "ppo") -> str:
-    """``auto`` → ``brax`` for a PPO run on a task of :data:`BRAX_PPO` or a DDPG / TD3 run on one of
-    :data:`BRAX_SAC`, ``playground`` for such a run on a ``playground:<Name>`` env with MuJoCo Playground's
-    settings (:func:`playground_task`), else ``fast`` on an accelerator backend, else ``cpu``; other names
-    unchanged (validated: ``brax`` and ``playground`` are PPO's, DDPG's and TD3's)."""
-    valid, table = {"ppo": (PPO_PRESETS, BRAX_PPO), "ddpg": (DDPG_PRESETS, BRAX_SAC), "td3": (DDPG_PRESETS, BRAX_SAC),
-                    "sac": (DDPG_PRESETS, BRAX_SAC)}.get(algo, (PRESETS, {}))  # fmt: skip
-    if name not in valid:
-        raise ValueError(f"unknown preset {name!r}; valid presets: {', '.join(valid)}")
-    if name == "auto":
-        if env_name is not None and _brax_task_of(env_name, table):
-            return "brax"
-        if playground_task(env_name, algo):
-            return "playground"
-        return "fast" if jax.default_backend() in ("gpu", "cuda", "rocm", "tpu") else "cpu"
-    return name
-
-
 def tracking_schedule(rsi_end: float = 2 / 3, narrow_end: float = 5 / 6, origin_start: float | None = None) -> tuple:
     """Thesis §5.5 curriculum as a PPO ``schedule`` for the tracking envs' episode parameters.
 
@@ -416,17 +429,6 @@ def tracking_schedule(rsi_end: float = 2 / 3, narrow_end: float = 5 / 6, origin_
     return tuple(out)
 
 
-def _family(env_name: str) -> str:
-    base = env_name.split(":")[-1]
-    if base in ("arm7", "arm7_precise"):
-        return "arm"
-    if base in ("unicycle", "scara"):
-        return "tracking"
-    if base == "racecar":
-        return "racing"
-    return "other"
-
-
 def ppo_env_overrides(
     name: str, env_name: str, pretrain: str = "none", policy: str = "mlp", trajectory: str | None = None
 ) -> dict:
@@ -438,15 +440,8 @@ def ppo_env_overrides(
     the one that is fast on a CPU: MJX's ``pd`` physics of the 7-link chain compiles and runs
     slowly on CPUs (see the foundation benchmark). ``fast`` keeps the env's default (``pd``).
 
-    ``unicycle`` trains with a sharper position term than Eq. 3.23's ``a_p = 1``: ``a_p = 100``
-    under ``cpu``, ``300`` under ``fast``.  With a_p = 1 a lag of a few centimetres costs almost
-    nothing and the robot drifted along its path (H100, sine, 3 seeds, 12 M steps: x sums 23.5 ±
-    10.7 at a_p = 1, 6.3 at 10, 4.4 at 30, 3.9 at 100; ``gpu-nvidia_h100_80gb_hbm3-ppo_tracking.md``).
-    At 30 M steps, 3 seeds, x / y / θ sums on the sine: 0.63 / 0.95 / 0.29 at a_p = 100, 0.32 /
-    0.41 / 0.18 at 300; ellipse 0.47 / 0.29 / 0.55 and 0.33 / 0.24 / 0.36
-    (``gpu-nvidia_h100_80gb_hbm3-tracking_sharper_rewards.md``).  ``cpu`` keeps 100 (300 not
-    measured there).  ``thesis`` keeps a_p = 1.  Under ``fast`` the sine of two-stage training and
-    of the LSTM uses 1000 (:data:`UNICYCLE_A_P_FAST`).
+    ``unicycle`` trains with a sharper position term than Eq. 3.23's ``a_p = 1`` (:func:`unicycle_a_p`;
+    why: ``benchmarks/results/why-presets.md`` § unicycle a_p); ``thesis`` keeps a_p = 1.
     """
     name = resolve_preset(name)
     if _family(env_name) == "arm" and name in ("thesis", "cpu"):
@@ -458,22 +453,12 @@ def ppo_env_overrides(
 
 
 UNICYCLE_A_P = {"cpu": 100.0, "fast": 300.0}
-"""Eq. 3.23's ``a_p`` of the unicycle under the ``cpu`` and ``fast`` presets (every algorithm; see
-:func:`ppo_env_overrides` and :func:`ddpg_env_overrides` for the measurements), except
-:data:`UNICYCLE_A_P_FAST`."""
+"""Eq. 3.23's ``a_p`` of the unicycle under the ``cpu`` and ``fast`` presets (every algorithm), except
+:data:`UNICYCLE_A_P_FAST` (why: ``benchmarks/results/why-presets.md`` § unicycle a_p)."""
 
 UNICYCLE_A_P_FAST = {("two-stage", "sine"): 1000.0, ("lstm", "sine"): 1000.0, ("distributed", "sine"): 1000.0}
-"""``(method, trajectory) -> a_p`` under ``fast`` where 1000 tracked better than 300 (H100, 3 seeds,
-x / y / θ sums; ``gpu-nvidia_h100_80gb_hbm3-tracking_ap1000.md`` and ``…-tracking_sharper_rewards.md``):
-
-* two-stage (20 M PPO steps), sine: 0.64 / 1.79 / 0.56 at 300, 0.39 / 0.77 / 0.22 at 1000; on the
-  ellipse 0.72 / 0.37 / 0.54 and 0.69 / 0.51 / 0.58, so the ellipse keeps 300;
-* LSTM (60 M steps), sine: 1.49 / 1.22 / 0.33 and 0.78 / 0.37 / 0.13; on the ellipse one seed of
-  three diverged at 1000 (mean 1.71 / 1.53 / 0.70 against 0.46 / 0.44 / 0.29 at 300);
-* distributed DDPG, sine: 0.59 / 0.73 / 0.51 and 0.45 / 0.40 / 0.31 (the ellipse not measured at 1000).
-
-Feed-forward PPO stays at 300 (sine 0.32 / 0.41 / 0.18 at 300, 0.38 / 0.52 / 0.18 at 1000); DDPG
-and TD3 were not measured at 1000."""
+"""``(method, trajectory) -> a_p`` under ``fast`` where 1000 tracked better than 300
+(``benchmarks/results/why-presets.md`` § unicycle a_p)."""
 
 
 def unicycle_a_p(name: str, method: str, trajectory: str | None = None) -> float:
@@ -484,6 +469,32 @@ def unicycle_a_p(name: str, method: str, trajectory: str | None = None) -> float
     if name == "fast":
         return UNICYCLE_A_P_FAST.get((method, trajectory), UNICYCLE_A_P[name])
     return UNICYCLE_A_P[name]
+
+
+RACING_ENV = {"road": "random", "opponent_speeds": True, "opponent_offsets": True, "distance_scale": "log",
+              "end_on_collision": True}
+"""``racecar`` under ``cpu`` and ``fast``: train on a bank of generated roads, see the opponents' closing
+speeds and offsets across the road, log-scaled distances, and end an episode at a collision
+(why: ``benchmarks/results/why-presets.md`` § racing env)."""
+
+
+def ddpg_env_overrides(name: str, env_name: str, method: str = "ddpg", trajectory: str | None = None) -> dict:
+    """Env settings a DDPG preset needs (the user's ``--env-config`` goes on top): a sharper reward.
+    ``method`` (``ddpg``, ``distributed``, ``td3``, ``distributed-td3``) and ``trajectory`` pick the
+    unicycle's ``a_p`` (:func:`unicycle_a_p`).
+
+    ``unicycle``: the sharper position term of :func:`ppo_env_overrides` (:data:`UNICYCLE_A_P`).
+    ``scara``: ``cpu`` Eq. 3.22's coefficient 50 instead of 2; ``fast`` 1000 and the ``extended``
+    observation (the error to the next reference point).  ``racecar`` under ``cpu`` and ``fast``:
+    :data:`RACING_ENV`.  ``thesis`` keeps Eq. 3.22-3.23.  Why: ``benchmarks/results/why-presets.md``
+    § unicycle a_p, § scara reward.
+    """
+    name = resolve_preset(name)
+    if name not in ("cpu", "fast"):
+        return {}
+    scara = {"cpu": {"reward_coef": 50.0}, "fast": {"reward_coef": 1000.0, "observation": "extended"}}[name]
+    sharper = {"unicycle": {"a_p": unicycle_a_p(name, method, trajectory)}, "scara": scara, "racecar": RACING_ENV}
+    return sharper.get(env_name.split(":")[-1], {})
 
 
 def ppo_preset(
@@ -515,11 +526,8 @@ def ppo_preset(
 
 
 ARM_FAST_STEPS = {1: 3_000_000, 2: 4_000_000, 4: 5_000_000}
-"""PPO ``fast`` on ``arm7``: env steps by device count, with 4 096 lanes and mini-batches of 8 192 per device.
-Chosen on tuning seeds 11-13 (3 seeds vmapped on one H200 each, 128 test episodes per evaluation, 5 cm goal):
-the first evaluation at ≥ 95 % came after 1-2 M steps with 4 096 lanes, 2.2-3.1 M with 8 192 (mini-batch
-16 384) and 4 M with 16 384 (mini-batch 32 768); the budgets keep about 1 M steps of margin. Other counts:
-3 M + 1 M per doubling."""
+"""PPO ``fast`` on ``arm7``: env steps by device count, with 4 096 lanes and mini-batches of 8 192 per device
+(why: ``benchmarks/results/why-presets.md`` § PPO fast arm). Other counts: 3 M + 1 M per doubling."""
 
 
 def arm_fast_on_devices(config: PPOConfig, devices: int) -> PPOConfig:
@@ -535,10 +543,8 @@ def lstm_variant(config: PPOConfig, name: str, family: str) -> PPOConfig:
     """``config`` with the recurrent networks of thesis §5.7: FC 256 → LSTM 256 → FC for actor and
     critic, sequences of 10 steps, each sequence in two of the 8 updates per batch (``thesis``: K = 4
     lanes × 40 steps, mini-batches of one sequence per lane); tracking envs: the curriculum ends with
-    200 of 3000 episodes from ``t = 0``; under ``fast`` twice the feed-forward budget: on the
-    unicycle (a_p = 300, H100, 3 seeds) the x / y / θ sums went from 2.74 / 2.66 / 0.49 at 30 M steps
-    to 1.49 / 1.22 / 0.33 at 60 M on the sine, and from 1.28 / 0.99 / 0.62 to 0.46 / 0.44 / 0.29 on
-    the ellipse (``benchmarks/results/gpu-nvidia_h100_80gb_hbm3-tracking_sharper_rewards.md``).
+    200 of 3000 episodes from ``t = 0``; under ``fast`` twice the feed-forward budget
+    (``benchmarks/results/why-presets.md`` § PPO LSTM).
     ``brax``: the task's lanes and unrolls (whole sequences), the recurrent policy's clipped actions
     and relu (it has neither the squashed action nor a σ from the state)."""
     if name in ("brax", "playground"):  # each sequence in two of the 8 updates
@@ -576,7 +582,8 @@ def _ppo_base_preset(name: str, env_name: str, episode_length: int, action_size:
     if name == "playground":  # the env's own time limit (Playground's row: its default config's)
         return playground_ppo_config(env_name, action_size, segments, episode_length=episode_length)
     if family == "arm":
-        # Table 5.2 and §5.4: 2 x 200 nets, batch-norm actor, σ = [0.8, 0.8, 0.1].
+        # Table 5.2 and §5.4: 2 x 200 nets, batch-norm actor, σ = [0.8, 0.8, 0.1]. Why the rest: why-presets.md
+        # § PPO thesis arm, § PPO cpu arm, § PPO fast arm.
         base = PPOConfig(
             actor_lr=1e-4, critic_lr=5e-4, clip_eps=0.2, gamma=0.9, gae_lambda=0.95, sigma=(0.8, 0.8, 0.1),
             actor_hidden=(200, 200), critic_hidden=(200, 200), batch_norm=True,
@@ -584,13 +591,8 @@ def _ppo_base_preset(name: str, env_name: str, episode_length: int, action_size:
         presets = {
             "thesis": dict(num_envs=4, unroll_length=8, minibatch_size=32, actor_updates=5, critic_updates=5,
                            total_steps=2000 * episode_length),
-            # Batch-norm off: with BN the acting policy (moving averages) and the updated one (batch
-            # statistics) drift apart and learning oscillated (89 % vs 100 % test success at 300 k steps).
             "cpu": dict(num_envs=32, unroll_length=16, minibatch_size=256, actor_updates=8, critic_updates=8,
                         actor_lr=3e-4, critic_lr=1e-3, batch_norm=False, total_steps=400_000),
-            # A fresh reset per lane (reset_refresh=1): on a GPU the MJX physics of pd mode dominates
-            # a step, the reset pool gained nothing at 4096 lanes (1.13 vs 1.16 M env steps/s on an
-            # H200) and took 7 s longer to compile.
             "fast": dict(num_envs=4096, unroll_length=8, minibatch_size=8192, actor_updates=8, critic_updates=8,
                          actor_lr=1e-3, critic_lr=1e-3, batch_norm=False, total_steps=12_000_000, reset_refresh=1.0),
         }
@@ -600,16 +602,7 @@ def _ppo_base_preset(name: str, env_name: str, episode_length: int, action_size:
         sigma = (0.1, 0.01) if unicycle else (0.1,) * action_size
         tuned = dict(sigma=(0.1, 0.05) if unicycle else sigma, learn_std=True, normalize_obs=True)
         if unicycle:
-            # γ = 0.99 instead of Table 5.3's 0.9. Under Eq. 3.23 both the position term and the
-            # cost of the velocity deviation that corrects it are quadratic in the error, so with a
-            # 10-step horizon the return favours leaving a drift uncorrected at any size: γ = 0.9
-            # policies drifted by 0.1-0.2 m (sine error sums 8.6 / 11.3 / 2.7 after 3 M steps);
-            # γ = 0.99 corrects it (5.5 / 2.2 / 0.59 after 1 M, seed 0; 4.3 / 5.0 / 1.2 seed 1;
-            # benchmarks/results/cpu-2core-ppo_unicycle.md). The adaptive-KL objective (Eq. 5.3-5.4)
-            # steadied the seeds: y and θ below the thesis's in all four runs (2 seeds × 2 references),
-            # the clipped objective in five of eight figures. Longer runs break down: at 2 M steps
-            # β halves towards 0 while KL stays under target and cannot double back in time, then KL
-            # reaches 3.5 and the policy collapses (sine 39 / 30 / 2.8); adapt_kl_beta has no floor.
+            # γ = 0.99 instead of Table 5.3's 0.9 and the adaptive-KL objective: why-presets.md § PPO tracking.
             tuned.update(gamma=0.99, objective="kl")
         base = PPOConfig(
             actor_lr=1e-4, critic_lr=5e-4, clip_eps=0.2, gamma=0.9, gae_lambda=0.95, sigma=sigma,
@@ -618,17 +611,14 @@ def _ppo_base_preset(name: str, env_name: str, episode_length: int, action_size:
         presets = {
             "thesis": dict(num_envs=4, unroll_length=16, minibatch_size=32, actor_updates=8, critic_updates=8,
                            total_steps=3000 * episode_length),
-            # A learned σ (from a wider start on the turn rate) and normalised observations tracked
-            # 2-3x more precisely than the thesis's fixed σ in 2 M steps on the sine.
+            # A learned σ and normalised observations: why-presets.md § PPO tracking.
             "cpu": dict(num_envs=32, unroll_length=16, minibatch_size=256, actor_updates=8, critic_updates=8,
                         actor_lr=3e-4, critic_lr=1e-3, total_steps=3_000_000, **tuned),
             "fast": dict(num_envs=4096, unroll_length=16, minibatch_size=16384, actor_updates=8, critic_updates=8,
                          actor_lr=1e-3, critic_lr=1e-3, total_steps=30_000_000, **tuned),
         }
         if unicycle:
-            # 1 M steps (about 2 min on a 2-core CPU): past that, with lr 3e-4, the learned σ has
-            # shrunk so far that the per-iteration KL climbs above 0.05 and tracking got worse
-            # (ellipse 2.2 / 3.6 / 3.5 at 1 M, 7.4 / 13.6 / 4.3 at 2 M, one seed).
+            # 1 M steps (about 2 min on a 2-core CPU; why-presets.md § PPO tracking).
             presets["cpu"]["total_steps"] = 1_000_000
     else:
         base = PPOConfig(sigma=(0.5,) * action_size, actor_hidden=(64, 64), critic_hidden=(64, 64), batch_norm=False,
@@ -645,16 +635,6 @@ def _ppo_base_preset(name: str, env_name: str, episode_length: int, action_size:
     return _precise(config) if _precise_arm(env_name) else config
 
 
-def _precise_arm(env_name: str) -> bool:
-    """Whether ``env_name`` is ``arm7_precise`` (1 cm goal threshold): PPO and A2C/A3C learn σ there.
-
-    With the thesis's fixed σ = [0.8, 0.8, 0.1] C the exploration noise (4 cm) swamps the 1 cm final
-    approach: PPO, path reward, ``cpu`` preset, seed 0, 400 k steps, success at 1 / 2 / 5 cm: fixed σ
-    6 / 29 / 90 %; learned σ (starting at the preset's) with normalised observations 97 / 97 / 97 %.
-    """
-    return env_name.split(":")[-1] == "arm7_precise"
-
-
 def _precise(config: PPOConfig) -> PPOConfig:
     """PPO on ``arm7_precise``: a learned σ and normalised observations (see :func:`_precise_arm`)."""
     return config.replace(learn_std=True, normalize_obs=True)
@@ -669,7 +649,8 @@ def a2c_preset(
     1e-4, critic 2e-4, β = 0.01, γ = 0.9, σ = [0.8, 0.8, 0.1]; 2 x 200 nets, batch-norm actor; 2000
     episodes' worth of steps; A3C pushes in a random order. ``cpu`` (32 lanes) and ``fast`` (4096
     lanes) keep the algorithm and the thesis's 4 A3C workers (groups of lanes), drop batch-norm,
-    standardise advantages and anneal the learning rates (measurements in the code). Env overrides as
+    standardise advantages and anneal the learning rates (why: ``benchmarks/results/why-presets.md`` § A2C
+    arm). Env overrides as
     :func:`ppo_env_overrides` (arm7 in ``kinematic`` mode under ``thesis`` and ``cpu``).
     """
     name = resolve_preset(name, algo="a2c")
@@ -683,10 +664,6 @@ def a2c_preset(
         )
         presets = {
             "thesis": dict(num_envs=4, unroll_length=8, total_steps=2000 * episode_length),
-            # Measured on arm7 (ordinary reward, 400 k steps, 100 test episodes): batch-norm actor 0 %
-            # (its batch statistics in training and moving averages in acting disagree and the acting
-            # policy saturates), BN off 0 % (the ±10 goal/region terms drown the progress signal)
-            # until the advantages are standardised: 99 %; a linear lr decay steadies the end.
             "cpu": dict(num_envs=32, unroll_length=8, actor_lr=1e-3, critic_lr=1e-3, batch_norm=False,
                         normalize_advantages=True, lr_schedule="linear", total_steps=400_000),
             "fast": dict(num_envs=4096, unroll_length=8, actor_lr=1e-3, critic_lr=1e-3, batch_norm=False,
@@ -710,50 +687,6 @@ def a2c_preset(
     return (config.replace(learn_std=True) if _precise_arm(env_name) else config), env_overrides
 
 
-# ---- DDPG ---------------------------------------------------------------------------------
-
-DDPG_PRESETS = ("auto", "thesis", "cpu", "fast", "brax", "playground")
-"""DDPG's and TD3's presets: ``brax`` is :func:`brax_sac_ddpg_config` of the env's :data:`BRAX_SAC` task
-(hopper's row for other envs, with the env's own episode length); ``playground`` is
-:func:`playground_sac_ddpg_config` of a ``playground:<Name>`` env."""
-
-
-RACING_ENV = {"road": "random", "opponent_speeds": True, "opponent_offsets": True, "distance_scale": "log",
-              "end_on_collision": True}
-"""``racecar`` under ``cpu`` and ``fast``: train on a bank of generated roads, see the opponents' closing
-speeds and offsets across the road, log-scaled distances, and end an episode at a collision.  One H100,
-``fast``, 3 seeds, 20 laps per road (``benchmarks/results/gpu-nvidia_h100_80gb_hbm3-racing-*``), successes
-on train / test1 / test2 / test3: TD3 trained on the training road alone 11.7 / 0 / 0 / 0 (H200); on the
-bank 11.0 / 15.3 / 11.7 / 15.3; with the offsets and the end at a collision 16.0 / 16.7 / 15.3 / 18.0."""
-
-
-def ddpg_env_overrides(name: str, env_name: str, method: str = "ddpg", trajectory: str | None = None) -> dict:
-    """Env settings a DDPG preset needs (the user's ``--env-config`` goes on top): a sharper reward.
-    ``method`` (``ddpg``, ``distributed``, ``td3``, ``distributed-td3``) and ``trajectory`` pick the
-    unicycle's ``a_p`` (:func:`unicycle_a_p`).
-
-    ``unicycle``: the sharper position term of :func:`ppo_env_overrides` (:data:`UNICYCLE_A_P`), for
-    the same reason.  CPU, sine, seed 0, ``cpu`` preset: x / y / θ sums 7.75 / 5.75 / 2.22 at Eq.
-    3.23's a_p = 1, 1.43 / 1.13 / 0.83 at a_p = 100 (``cpu-2core-ddpg_tracking.md``).  H100, ``fast``,
-    3 seeds, ``ddpg``: sine 1.08 / 0.95 / 0.85 at 100, 0.60 / 0.71 / 0.57 at 300; ellipse 1.79 / 2.68
-    / 1.96 and 0.63 / 0.72 / 0.76.  Distributed on the sine: 0.98 / 1.30 / 0.83 at 100, 0.59 / 0.73 /
-    0.51 at 300, 0.45 / 0.40 / 0.31 at 1000, its sine's preset (:data:`UNICYCLE_A_P_FAST`).
-    ``scara``: ``cpu`` Eq. 3.22's coefficient 50 instead of 2; ``fast`` 1000 and the ``extended``
-    observation (the error to the next reference point).  H100, ``fast``, 3 seeds, x / y / z sums:
-    ``ddpg`` 4.26 / 4.38 / 3.26 at 2, 1.73 / 2.10 / 1.95 at 50, 1.29 / 1.10 / 1.51 at 50 extended,
-    0.80 / 0.85 / 0.87 at 300 extended; distributed 1.02 / 1.22 / 1.53 at 50, 0.57 / 0.47 / 0.55 at
-    300 extended, 0.22 / 0.21 / 0.19 at 1000 extended (``ddpg`` at 1000 not measured).
-    Files: ``gpu-nvidia_h100_80gb_hbm3-ddpg_tracking.md``, ``…-tracking_sharper_rewards.md``.
-    ``racecar`` under ``cpu`` and ``fast``: :data:`RACING_ENV`.  ``thesis`` keeps Eq. 3.22-3.23.
-    """
-    name = resolve_preset(name)
-    if name not in ("cpu", "fast"):
-        return {}
-    scara = {"cpu": {"reward_coef": 50.0}, "fast": {"reward_coef": 1000.0, "observation": "extended"}}[name]
-    sharper = {"unicycle": {"a_p": unicycle_a_p(name, method, trajectory)}, "scara": scara, "racecar": RACING_ENV}
-    return sharper.get(env_name.split(":")[-1], {})
-
-
 def ddpg_preset(
     name: str, env_name: str, episode_length: int, reward: str | None = None, distributed: bool = False,
     her: str = "none",
@@ -764,25 +697,14 @@ def ddpg_preset(
     Arm (Tables 3.1-3.2, §3.4.2): the 'episodes' schedule — epochs × 50 cycles × 16 episodes,
     40 updates per cycle, batch 128, memory 10^6, lr 1e-3 / 1e-3, ε 0.05, γ 0.9, PER α 0.6,
     β0 0.4, +0.001; 3 × 100 nets; 200 epochs for the sparse reward, 100 for the shaped one, and 200
-    for every reward on ``arm7_precise`` (1 cm goal: with the ``fast`` preset's 10 epochs the shaped
-    reward with random relabelling goals reached 72 / 40 % within 2 / 1 cm, its success still rising
-    at the end; 3 seeds, one H100), twice that with ``her='random'`` there (its goals, drawn over the
-    whole feasible region, add no successes near the 1 cm goal: 96 / 76 % within 2 / 1 cm after 20
-    fast epochs, the three seeds at 45, 97 and 85 % within 1 cm).  On ``arm7_precise`` the networks
-    also see normalised observations (``normalize_obs``): without them one seed of six of the shaped
-    reward with random relabelling goals stopped about 6 cm short of its goals (9 / 3 % within 2 / 1 cm)
-    and the six averaged 83.5 / 79.8 %; with them the same six seeds reached 99.5 / 98.5 %, every seed
-    ≥ 96 % within 1 cm (fast, 40 epochs, one H100 each; a decaying exploration noise instead left two
-    of six seeds short of the goal).
-    ``cpu`` also gives random relabelling goals twice the epochs on ``arm7``: with 10, the shaped
-    reward reached 97 / 79 / 98 % over three seeds, with 20 98 / 96 / 100 % (2-core CPU); ``fast``
-    reached 99.0 ± 0.8 and 98.3 ± 1.2 % in two runs of 10 (one H100) and keeps them.
+    for every reward on ``arm7_precise``, twice that with ``her='random'`` there; normalised observations
+    on ``arm7_precise``; ``cpu`` gives random relabelling goals twice the epochs on ``arm7`` too.
     Exploration: Gaussian σ = 0.2 (the thesis does not give the arm's noise).  With the sparse
     reward, critic targets are clipped to [−1/(1−γ), 0] and a failure (leaving the region) is
     valued as never reaching the goal (``failure_value`` −1/(1−γ)), so that leaving the region
     is no shortcut.  With the shaped reward they are clipped to its return range
-    (``Arm7.return_bounds``: [−19.46, 10] at γ = 0.9): unclipped, one seed of three of HER future
-    k=2 (``fast``, one H100) saw its critic diverge (loss 12 → 5·10⁶, Q ≈ 2·10⁴) and reached 0 %.
+    (``Arm7.return_bounds``: [−19.46, 10] at γ = 0.9).  Why: ``benchmarks/results/why-presets.md``
+    § DDPG arm.
 
     Tracking (Table 3.3, §3.5): the 'steps' schedule — one lane, one update per step once 5000
     transitions are stored, memory 50 000, batch 32, lr 1e-4 / 1e-4, ε 0.01, γ 0.9, PER, OU
@@ -805,57 +727,71 @@ def ddpg_preset(
     elif name == "playground":  # the env's own time limit (Playground's row: its default config's)
         base, presets = playground_sac_ddpg_config(env_name, episode_length=episode_length), {"playground": {}}
     elif family == "arm":
-        sparse = reward == "sparse"
-        long = sparse or _precise_arm(env_name)
-        scale = 2 if _precise_arm(env_name) and her == "random" else 1
-        base = DDPGConfig(
-            schedule="episodes", epochs=(200 if long else 100) * scale, cycles_per_epoch=50, num_envs=16,
-            updates_per_cycle=40, batch_size=128, buffer_size=1_000_000, actor_lr=1e-3, critic_lr=1e-3, tau=0.05,
-            gamma=0.9, alpha=0.6, beta0=0.4, beta_increment=0.001, actor_hidden=(100, 100, 100),
-            critic_hidden=(100, 100, 100), noise="gaussian", noise_scale=(0.2,),
-            target_clip=(-10.0, 0.0) if sparse else (), failure_value=-10.0 if sparse else 0.0,
-            clip_targets_to_env=reward == "shaped", normalize_obs=_precise_arm(env_name),
-        )
-        presets = {
-            "thesis": {},
-            "cpu": dict(epochs=(20 if long else 10) * (2 if her == "random" else 1)),
-            "fast": dict(epochs=(20 if long else 10) * scale, cycles_per_epoch=10, num_envs=1024, updates_per_cycle=400,
-                         batch_size=1024),
-        }
+        base, presets = _arm_preset(env_name, reward, her)
     elif family == "tracking":
-        base = DDPGConfig(
-            schedule="steps", total_steps=1000 * episode_length, num_envs=1, unroll_length=1,
-            updates_per_iteration=1, learning_starts=5000, batch_size=32, buffer_size=50_000, actor_lr=1e-4,
-            critic_lr=1e-4, tau=0.01, gamma=0.9, per=True, alpha=0.6, beta0=0.4, beta_increment=0.001,
-            actor_hidden=(300, 100), critic_hidden=(300, 100), noise="ou", noise_scale=(0.2,),
-            noise_reversion=(0.15,), noise_mean=(0.0,),
-        )
-        # cpu and fast: normalised observations; γ 0.99 with the reward as a cost (r − 1) and the end
-        # of the reference bootstrapped (only early termination ends an episode, valued −1/(1−γ));
-        # Gaussian exploration σ 0.1 decaying linearly to 0.02; twin critics with the actor and targets
-        # updated every second critic update.  Measured on two or three seeds per reference on the CPU
-        # (benchmarks/results/cpu-2core-ddpg_tracking.md, third round) and once per robot with the fast
-        # schedule on an H200 (gpu-nvidia_h200-ddpg_tracking.md); `thesis` keeps Table 3.3.
-        learning = dict(normalize_obs=True, gamma=0.99, reward_shift=-1.0, termination_metric="early_termination",
-                        failure_value=-100.0, noise="gaussian", noise_scale=(0.1,), noise_end_factor=0.2,
-                        twin_critics=True, policy_delay=2)  # fmt: skip
-        presets = {
-            "thesis": {},
-            "cpu": dict(num_envs=4, unroll_length=8, updates_per_iteration=32, **learning),
-            "fast": dict(num_envs=256, unroll_length=4, updates_per_iteration=32, batch_size=256,
-                         buffer_size=1_000_000, total_steps=20_000 * episode_length, **learning),
-        }
+        base, presets = _tracking_preset(episode_length)
     elif family == "racing":
         base, presets = _racing_preset()
     else:
-        base = DDPGConfig(schedule="steps", total_steps=200_000, num_envs=4, unroll_length=8, updates_per_iteration=8,
-                          learning_starts=1000, batch_size=128, buffer_size=200_000, actor_lr=1e-3, critic_lr=1e-3,
-                          tau=0.005, gamma=0.99, actor_hidden=(256, 256), critic_hidden=(256, 256), noise="gaussian",
-                          noise_scale=(0.1,))
-        presets = {"thesis": {}, "cpu": {},
-                   "fast": dict(num_envs=256, updates_per_iteration=64, batch_size=1024, total_steps=5_000_000)}
+        base, presets = _other_preset()
     config = base.replace(**presets[name])
     return distribute(config, name) if distributed else config
+
+
+def _arm_preset(env_name: str, reward: str | None, her: str) -> tuple[DDPGConfig, dict]:
+    """The arm's base config and preset entries (see :func:`ddpg_preset`)."""
+    sparse = reward == "sparse"
+    long = sparse or _precise_arm(env_name)
+    scale = 2 if _precise_arm(env_name) and her == "random" else 1
+    base = DDPGConfig(
+        schedule="episodes", epochs=(200 if long else 100) * scale, cycles_per_epoch=50, num_envs=16,
+        updates_per_cycle=40, batch_size=128, buffer_size=1_000_000, actor_lr=1e-3, critic_lr=1e-3, tau=0.05,
+        gamma=0.9, alpha=0.6, beta0=0.4, beta_increment=0.001, actor_hidden=(100, 100, 100),
+        critic_hidden=(100, 100, 100), noise="gaussian", noise_scale=(0.2,),
+        target_clip=(-10.0, 0.0) if sparse else (), failure_value=-10.0 if sparse else 0.0,
+        clip_targets_to_env=reward == "shaped", normalize_obs=_precise_arm(env_name),
+    )
+    presets = {
+        "thesis": {},
+        "cpu": dict(epochs=(20 if long else 10) * (2 if her == "random" else 1)),
+        "fast": dict(epochs=(20 if long else 10) * scale, cycles_per_epoch=10, num_envs=1024, updates_per_cycle=400,
+                     batch_size=1024),
+    }
+    return base, presets
+
+
+def _tracking_preset(episode_length: int) -> tuple[DDPGConfig, dict]:
+    """Trajectory tracking's base config and preset entries (Table 3.3; see :func:`ddpg_preset`)."""
+    base = DDPGConfig(
+        schedule="steps", total_steps=1000 * episode_length, num_envs=1, unroll_length=1,
+        updates_per_iteration=1, learning_starts=5000, batch_size=32, buffer_size=50_000, actor_lr=1e-4,
+        critic_lr=1e-4, tau=0.01, gamma=0.9, per=True, alpha=0.6, beta0=0.4, beta_increment=0.001,
+        actor_hidden=(300, 100), critic_hidden=(300, 100), noise="ou", noise_scale=(0.2,),
+        noise_reversion=(0.15,), noise_mean=(0.0,),
+    )
+    # cpu and fast: normalised observations, γ 0.99 with the reward as a cost, decaying Gaussian
+    # exploration, twin critics and a policy delay of 2 (why-presets.md § DDPG tracking); thesis: Table 3.3.
+    learning = dict(normalize_obs=True, gamma=0.99, reward_shift=-1.0, termination_metric="early_termination",
+                    failure_value=-100.0, noise="gaussian", noise_scale=(0.1,), noise_end_factor=0.2,
+                    twin_critics=True, policy_delay=2)  # fmt: skip
+    presets = {
+        "thesis": {},
+        "cpu": dict(num_envs=4, unroll_length=8, updates_per_iteration=32, **learning),
+        "fast": dict(num_envs=256, unroll_length=4, updates_per_iteration=32, batch_size=256,
+                     buffer_size=1_000_000, total_steps=20_000 * episode_length, **learning),
+    }
+    return base, presets
+
+
+def _other_preset() -> tuple[DDPGConfig, dict]:
+    """Any other env's base config and preset entries: the usual DDPG settings of continuous control."""
+    base = DDPGConfig(schedule="steps", total_steps=200_000, num_envs=4, unroll_length=8, updates_per_iteration=8,
+                      learning_starts=1000, batch_size=128, buffer_size=200_000, actor_lr=1e-3, critic_lr=1e-3,
+                      tau=0.005, gamma=0.99, actor_hidden=(256, 256), critic_hidden=(256, 256), noise="gaussian",
+                      noise_scale=(0.1,))
+    presets = {"thesis": {}, "cpu": {},
+               "fast": dict(num_envs=256, updates_per_iteration=64, batch_size=1024, total_steps=5_000_000)}
+    return base, presets
 
 
 def _racing_preset() -> tuple[DDPGConfig, dict]:
@@ -871,15 +807,7 @@ def _racing_preset() -> tuple[DDPGConfig, dict]:
     then fine-tune with the actor anchored to the expert's labels (``imitation_weight``); their
     env is :data:`RACING_ENV` (:func:`ddpg_env_overrides`).  ``fast`` keeps the latest 10^6 pairs,
     imitates at lr 3e-4, then puts the anchor in the actor's loss with weight 1 (``imitation_anchor='loss'``,
-    TD3+BC's objective).  3 seeds, 20 laps per road, successes on train / test1 / test2 / test3:
-    imitation alone 19.3 / 20 / 17.0 / 20 (H200); the anchor in the loss (H100) — TD3 19.3 / 19.7 /
-    19.7 / 19.7 and DDPG 19.3 / 19.7 / 19.7 / 19.3 at weight 1 (``*racing-bcloss1-*.md``), TD3 19.3 /
-    19.3 / 19.0 / 18.3 at 0.5 and 19.3 / 20 / 16.7 / 18.7 at 0.3; at weight 2 TD3 19.7 / 20 / 18.7 / 20
-    and DDPG 20 / 19.7 / 19.0 / 19.7 (a seed of each under 19 on test2), at 3 TD3 19.7 / 19.3 / 19.3 / 20
-    (one seed 18). Weight 1 is the one where every seed of both reaches 19. No weight makes TD3 faster
-    than DDPG (README, "Racing"); the anchor as separate imitation steps
-    (H200) — TD3 17.7 / 19.3 / 15.3 / 19.7 and DDPG 17.3 / 19.0 / 18.0 / 20.0 at weight 10
-    (``*racing-imit1M-*.md``).
+    TD3+BC's objective; why: ``benchmarks/results/why-presets.md`` § racing preset).
     """
     base = DDPGConfig(
         schedule="steps", total_steps=100_000, num_envs=1, unroll_length=1, updates_per_iteration=1,
