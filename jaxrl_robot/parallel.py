@@ -55,6 +55,7 @@ __all__ = [
     "LANES",
     "P",
     "all_gather",
+    "device_summary",
     "exit_at_once",
     "global_lane_ids",
     "initialize_multihost",
@@ -64,6 +65,7 @@ __all__ = [
     "local_lane_count",
     "lost_peer",
     "on_accelerator",
+    "on_gpu",
     "pmean",
     "psum",
     "set_peer_loss_note",
@@ -80,6 +82,17 @@ IMPL_ENV = "JAXRL_LANE_MAP"
 def on_accelerator() -> bool:
     """Whether JAX's default backend is an accelerator (a GPU or TPU) rather than the CPU."""
     return jax.default_backend() != "cpu"
+
+
+def on_gpu() -> bool:
+    """Whether JAX's default backend is a GPU (where Pallas's Triton kernels run)."""
+    return jax.default_backend() == "gpu"
+
+
+def device_summary() -> list[tuple[int, str, str, int]]:
+    """Every device of the run, in JAX's order, as ``(id, platform, kind, process index)``: what a compiled
+    program is built for (part of the key of a program kept between processes)."""
+    return [(d.id, d.platform, d.device_kind, d.process_index) for d in jax.devices()]
 
 
 def lane_mesh(num_devices: int | None = None, devices: Sequence[jax.Device] | None = None) -> Mesh:

@@ -21,6 +21,7 @@ from typing import Any
 
 import jax
 
+from jaxrl_robot import parallel
 from jaxrl_robot.compilation.log import compile_log
 
 __all__ = ["FINGERPRINTED", "PROGRAMS", "VERSIONED", "ProgramCache", "code_fingerprint", "signature"]
@@ -86,7 +87,7 @@ def _process_context() -> str:
         "python": sys.version.split()[0],
         "jax_config": {k: str(getattr(jax.config, k, None)) for k in settings},
         "env": {k: os.environ.get(k) for k in ("XLA_FLAGS", "LIBTPU_INIT_ARGS")},
-        "devices": [(d.id, d.platform, d.device_kind, d.process_index) for d in jax.devices()],
+        "devices": parallel.device_summary(),
     }, sort_keys=True)  # fmt: skip
 
 

@@ -27,14 +27,12 @@ priority (:class:`PriorityRule`).
 
 Backends (``backend=``):
 
-* ``"pallas"``: two Pallas (Triton) kernels.  Sampling runs ``⌈m / G⌉`` programs of ``G``
-  queries; each computes the running sums of the ``K`` block sums and of its queries' leaf
-  rows in registers.  An update runs one program per batch row; the first row of each touched
-  block owns the block: it writes that block's leaves (last occurrence of each index),
-  synchronises its threads and sums the block, so no two programs touch one block.
-  The update kernel takes batches up to :data:`KERNEL_BATCH_MAX` rows (larger ones, such as a
-  replay's ``add`` of many episodes, take the XLA path), and :func:`set_priorities` folds a
-  prioritised replay's whole update — ``(|δ| + ε)^α``, the largest priority, β — into it.
+* ``"pallas"``: two Pallas (Triton) kernels, :mod:`~jaxrl_robot.replay.block_kernels`: a sample's
+  programs each descend a group of queries with the running sums in registers; in an update the first
+  row of each touched block owns the block, so no two programs touch one block.  The update kernel
+  takes batches up to :data:`KERNEL_BATCH_MAX` rows (larger ones, such as a replay's ``add`` of many
+  episodes, take the XLA path), and :func:`set_priorities` folds a prioritised replay's whole update
+  — ``(|δ| + ε)^α``, the largest priority, β — into it.
 * ``"xla"``: the same arithmetic as ``jnp`` ops (the reference the kernels are tested against).
   On a CPU the ``[m, S]`` row scans make it much slower than :mod:`~jaxrl_robot.replay.sum_tree`
   (capacity 10^6, batch 128: 783 against 26 µs per sample), so prioritised replay keeps the sum
@@ -59,6 +57,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from jaxrl_robot import parallel
 from jaxrl_robot.replay import sum_tree
 
 __all__ = [
@@ -80,12 +79,6 @@ __all__ = [
 ]
 
 BACKENDS = ("auto", "pallas", "xla", "interpret")
-GROUP = 4
-"""Queries per program of the sampling kernel."""
-SAMPLE_WARPS = 2
-"""Warps per program of the sampling kernel."""
-UPDATE_WARPS = 2
-"""Warps per program of the update kernel."""
 KERNEL_BATCH_MAX = 1024
 """Largest update batch the update kernel takes (each program reads the whole batch); larger
 batches (a replay's ``add`` of many episodes) take the XLA path."""
@@ -149,7 +142,7 @@ def resolve_backend(backend: str) -> str:
     if backend not in BACKENDS:
         raise ValueError(f"backend={backend!r} is not one of {BACKENDS}")
     if backend == "auto":
-        return "pallas" if jax.default_backend() == "gpu" else "xla"
+        return "pallas" if parallel.on_gpu() else "xla"
     return backend
 
 
@@ -173,8 +166,7 @@ def rebuild(state: BlockTreeState) -> BlockTreeState:
     return state.replace(block_sums=jnp.sum(state.leaf_values.reshape(-1, state.block_size), axis=1))
 
 
-# ----------------------------------------------------------------------------------------------
-# The descent, written once for arrays: used by the XLA backend and inside the sampling kernel.
+# ---- the descent, written once for arrays: the XLA backend's and the sampling kernel's ----------
 
 
 def _first_above(running: jax.Array, values: jax.Array, q: jax.Array) -> jax.Array:
@@ -218,8 +210,7 @@ def _queries(u: jax.Array, tot: jax.Array, first: jax.Array | int, m: int) -> ja
     return (strata.astype(u.dtype) + u) * (tot / m)
 
 
-# ----------------------------------------------------------------------------------------------
-# Sampling
+# ---- sampling ---------------------------------------------------------------------------------
 
 
 def _sample_xla(u: jax.Array, state: BlockTreeState) -> tuple[jax.Array, jax.Array]:
@@ -227,36 +218,6 @@ def _sample_xla(u: jax.Array, state: BlockTreeState) -> tuple[jax.Array, jax.Arr
     q = _queries(u, total(state), 0, m)
     rows_of = state.leaf_values.reshape(-1, state.block_size)
     return _descend(state.block_sums, lambda k: rows_of[k], q, state.block_size)
-
-
-def _sample_pallas(u: jax.Array, state: BlockTreeState, interpret: bool) -> tuple[jax.Array, jax.Array]:
-    from jax.experimental import pallas as pl
-    from jax.experimental.pallas import triton as plgpu
-
-    m = u.shape[0]
-    group = min(GROUP, _pow2_at_least(m))
-    padded = -(-m // group) * group
-    u = jnp.pad(u, (0, padded - m))
-    size, dtype = state.block_size, state.leaf_values.dtype
-
-    def kernel(u_ref, bs_ref, leaves_ref, idx_ref, prio_ref):
-        start = pl.program_id(0) * group
-        block_sums = bs_ref[...]
-        q = _queries(u_ref[pl.ds(start, group)], jnp.sum(block_sums), start, m)
-        cols = jax.lax.broadcasted_iota(jnp.int32, (1, size), 1)
-        idx, prio = _descend(block_sums, lambda k: leaves_ref[k[:, None] * size + cols], q, size)
-        idx_ref[pl.ds(start, group)] = idx
-        prio_ref[pl.ds(start, group)] = prio
-
-    idx, prio = pl.pallas_call(
-        kernel,
-        out_shape=(jax.ShapeDtypeStruct((padded,), jnp.int32), jax.ShapeDtypeStruct((padded,), dtype)),
-        grid=(padded // group,),
-        interpret=interpret,
-        compiler_params=None if interpret else plgpu.CompilerParams(num_warps=SAMPLE_WARPS),
-        name="block_tree_sample",
-    )(u, state.block_sums, state.leaf_values)
-    return idx[:m], prio[:m]
 
 
 def stratified_sample_with_priorities(
@@ -271,7 +232,9 @@ def stratified_sample_with_priorities(
     backend = resolve_backend(backend)
     if backend == "xla":
         return _sample_xla(u, state)
-    return _sample_pallas(u, state, interpret=backend == "interpret")
+    from jaxrl_robot.replay import block_kernels  # Pallas: imported where a kernel is asked for
+
+    return block_kernels.sample(u, state, interpret=backend == "interpret")
 
 
 def find(state: BlockTreeState, queries: jax.Array) -> jax.Array:
@@ -286,8 +249,7 @@ def find(state: BlockTreeState, queries: jax.Array) -> jax.Array:
     return _descend(state.block_sums, lambda k: rows_of[k], q, state.block_size)[0]
 
 
-# ----------------------------------------------------------------------------------------------
-# Update
+# ---- update -----------------------------------------------------------------------------------
 
 
 def _last_occurrence(indices: jax.Array, valid: jax.Array) -> jax.Array:
@@ -364,91 +326,6 @@ def next_scalars(scalars: jax.Array, raw: jax.Array, valid: jax.Array | None, ru
     return jnp.where(pos == 0, jnp.maximum(scalars, seen), jnp.minimum(scalars + rule.beta_increment, 1.0))
 
 
-def _set_pallas(
-    state: BlockTreeState, indices: jax.Array, values: jax.Array, valid: jax.Array | None, keep: jax.Array | None,
-    interpret: bool, rule: PriorityRule | None = None, scalars: jax.Array | None = None,
-    stored: jax.Array | None = None,
-) -> tuple[BlockTreeState, jax.Array | None]:  # fmt: skip
-    """The update kernel: one program per batch row; the first valid row of each touched block owns it.
-
-    A row is valid where ``valid`` (all when None) and ``0 <= index < min(capacity, stored)``.  With
-    ``rule``, every program reads ``scalars`` (aliased, written by program 0): see :func:`raw_priorities`.
-    """
-    from jax.experimental import pallas as pl
-    from jax.experimental.pallas import triton as plgpu
-
-    n = indices.shape[0]
-    padded = _pow2_at_least(n)
-    pad = (0, padded - n)
-    if padded != n:
-        indices, values = jnp.pad(indices, pad), jnp.pad(values, pad)
-        valid = jnp.pad(jnp.ones((n,), bool) if valid is None else valid, pad)
-        keep = None if keep is None else jnp.pad(keep, pad)
-    limit = None if stored is None else jnp.reshape(stored.astype(jnp.int32), (1,))
-    size = state.block_size
-    optional = {"valid": valid, "keep": keep, "scalars": scalars, "limit": limit}
-    names = ["indices", "values", *(k for k, v in optional.items() if v is not None), "leaves", "sums"]
-
-    def kernel(*refs):
-        ref = dict(zip(names, refs[: len(names)], strict=True))
-        out = dict(zip(["leaves", "sums", "scalars"], refs[len(names) :], strict=False))
-        i = pl.program_id(0)
-        idx = ref["indices"][...]
-        given = ref["valid"][...] if valid is not None else jnp.ones((padded,), bool)
-        ok = given & (idx >= 0) & (idx < state.capacity)
-        if limit is not None:
-            ok = ok & (idx < jnp.sum(ref["limit"][...]))
-        largest = None
-        if scalars is not None:
-            pos = jax.lax.broadcasted_iota(jnp.int32, (2,), 0)
-            largest = jnp.sum(jnp.where(pos == 0, ref["scalars"][...], 0))
-        val, raw = _apply_rule(ref["values"][...], rule, state.capacity, largest, ok)
-        if scalars is not None:
-
-            @pl.when(i == 0)
-            def _():
-                out["scalars"][...] = next_scalars(ref["scalars"][...], raw, ok, rule)
-
-        block = idx // size
-        me = jax.lax.broadcasted_iota(jnp.int32, (padded,), 0)
-        k = jnp.sum(jnp.where(me == i, block, 0))
-        mine = ok & (block == k)
-        first_of_block = jnp.min(jnp.where(mine, me, padded)) == i  # this row owns its block
-
-        @pl.when(first_of_block)
-        def _():
-            # equal indices are equally in range: only the given rows decide which repeat is the last
-            write = mine & (_last_occurrence(idx, given) if keep is None else ref["keep"][...])
-            # rows not written store a written row's value at its slot: an unmasked store is the same
-            # on the GPU and in the interpreter (whose masked store writes old values back)
-            r = jnp.min(jnp.where(write, me, padded))
-            target = jnp.where(write, idx, jnp.sum(jnp.where(me == r, idx, 0)))
-            out["leaves"][target] = jnp.where(write, val, jnp.sum(jnp.where(me == r, val, 0)))
-            if not interpret:
-                plgpu.debug_barrier()  # the block's writes are visible to every thread of this program
-            cols = jax.lax.broadcasted_iota(jnp.int32, (size,), 0)
-            row = plgpu.load(out["leaves"].at[k * size + cols], volatile=True)  # not from a stale L1 line
-            out["sums"][pl.ds(k, 1)] = jnp.sum(row, keepdims=True)
-
-    args = [indices, values, *(v for v in optional.values() if v is not None), state.leaf_values, state.block_sums]
-    out_shape = [jax.ShapeDtypeStruct(state.leaf_values.shape, state.leaf_values.dtype),
-                 jax.ShapeDtypeStruct(state.block_sums.shape, state.block_sums.dtype)]  # fmt: skip
-    aliases = {len(args) - 2: 0, len(args) - 1: 1}
-    if scalars is not None:
-        out_shape.append(jax.ShapeDtypeStruct(scalars.shape, scalars.dtype))
-        aliases[names.index("scalars")] = 2
-    outs = pl.pallas_call(
-        kernel,
-        out_shape=tuple(out_shape),
-        grid=(padded,),
-        input_output_aliases=aliases,
-        interpret=interpret,
-        compiler_params=None if interpret else plgpu.CompilerParams(num_warps=UPDATE_WARPS),
-        name="block_tree_set",
-    )(*args)
-    return state.replace(leaf_values=outs[0], block_sums=outs[1]), (outs[2] if scalars is not None else None)
-
-
 def _keep(indices: jax.Array, valid: jax.Array | None, unique_indices: bool) -> jax.Array:
     """``[B] bool`` rows to write: valid, and the last occurrence of their index unless promised unique."""
     ok = jnp.ones(indices.shape, bool) if valid is None else valid
@@ -467,20 +344,10 @@ def set(
     unique_indices: bool = False,
     backend: str = "auto",
 ) -> BlockTreeState:
-    """Set leaf priorities and recompute the sums of the touched blocks from their leaves.
-
-    Args:
-      state: the tree.
-      indices: ``[B]`` int leaf indices; repeats allowed (last wins); rows outside
-        ``[0, capacity)`` are ignored.
-      values: ``[B]`` new priorities (negative and NaN values are stored as 0, values above
-        :func:`~jaxrl_robot.replay.sum_tree.value_limit` as the limit).
-      mask: optional ``[B]`` bool; entries with False are ignored.
-      unique_indices: static promise that the masked-in ``indices`` are distinct.
-      backend: see the module docstring.
-    Returns:
-      The new tree.
-    """
+    """Set leaf priorities and recompute the sums of the touched blocks from their leaves: the arguments and
+    the result of :func:`jaxrl_robot.replay.sum_tree.set` (``indices [B]``, ``values [B]``, optional ``mask
+    [B]``; repeats: last wins; out-of-range rows ignored; values cleaned), on the ``backend`` of the module
+    docstring."""
     return _update(state, indices, values, mask, unique_indices, backend)[0]
 
 
@@ -528,4 +395,6 @@ def _update(
         return state, (None if rule is None else next_scalars(scalars, raw, mask, rule))
     # the kernel checks the range itself; a unique write's mask only needs the caller's rows
     keep = _keep(indices, mask, True) if unique_indices else None  # None: found inside the kernel
-    return _set_pallas(state, indices, values, mask, keep, backend == "interpret", rule, scalars, size)
+    from jaxrl_robot.replay import block_kernels  # Pallas: imported where a kernel is asked for
+
+    return block_kernels.update(state, indices, values, mask, keep, backend == "interpret", rule, scalars, size)

@@ -147,6 +147,20 @@ def count_nonfinite(td_errors: jax.Array) -> jax.Array:
     return jnp.sum(~jnp.isfinite(td_errors), dtype=jnp.int32)
 
 
+class _Spec(NamedTuple):
+    """The static settings of one prioritised replay (:func:`make_prioritized_replay`'s arguments, checked;
+    ``tree`` resolved to ``"sum"`` or ``"block"``; ``rule`` the update rule of the raw priorities)."""
+
+    capacity: int
+    batch_size: int
+    alpha: float
+    beta0: float
+    rule: block_tree.PriorityRule
+    tree: str
+    branching: int
+    backend: str
+
+
 def make_prioritized_replay(
     capacity: int,
     batch_size: int,
@@ -190,95 +204,101 @@ def make_prioritized_replay(
     for name, (value, ok, allowed) in checks.items():
         if not ok:
             raise ValueError(f"{name}={value!r} is out of range; allowed {allowed}")
-    capacity, batch_size = int(capacity), int(batch_size)
-    if tree == "auto":
-        tree = "sum"
     rule = block_tree.PriorityRule(float(alpha), float(priority_eps), float(beta_increment),
-                                   sum_tree.value_limit(capacity))
-    if tree == "block":
-        new_tree = lambda: block_tree.init(capacity)  # noqa: E731
-        set_tree = functools.partial(block_tree.set, backend=backend)
-        sample_tree = functools.partial(
-            block_tree.stratified_sample_with_priorities, batch_size=batch_size, backend=backend
-        )
-        tree_total = block_tree.total
+                                   sum_tree.value_limit(int(capacity)))  # fmt: skip
+    spec = _Spec(int(capacity), int(batch_size), alpha, beta0, rule, "block" if tree == "block" else "sum",
+                 branching, backend)  # fmt: skip
+    return PrioritizedReplay(init=functools.partial(_init, spec), add=functools.partial(_add, spec),
+                             sample=functools.partial(_sample, spec),
+                             update_priorities=functools.partial(_update_priorities, spec))  # fmt: skip
+
+
+def _init(spec: _Spec, example_item: Any) -> PrioritizedReplayState:
+    """Empty buffer for items shaped like ``example_item`` (one item, no batch axis)."""
+    zero = jnp.zeros((), jnp.int32)
+    if spec.tree == "block":
+        tree = block_tree.init(spec.capacity)
     else:
-        new_tree = lambda: sum_tree.init(capacity, branching)  # noqa: E731
-        set_tree = sum_tree.set
-        sample_tree = functools.partial(sum_tree.stratified_sample_with_priorities, batch_size=batch_size)
-        tree_total = sum_tree.total
+        tree = sum_tree.init(spec.capacity, spec.branching)
+    return PrioritizedReplayState(
+        data=empty_storage(example_item, spec.capacity),
+        tree=tree,
+        insert_pos=zero,
+        size=zero,
+        scalars=jnp.asarray([1.0, spec.beta0], jnp.float32),
+        capacity=spec.capacity,
+    )
 
-    def init(example_item: Any) -> PrioritizedReplayState:
-        """Empty buffer for items shaped like ``example_item`` (one item, no batch axis)."""
-        zero = jnp.zeros((), jnp.int32)
-        return PrioritizedReplayState(
-            data=empty_storage(example_item, capacity),
-            tree=new_tree(),
-            insert_pos=zero,
-            size=zero,
-            scalars=jnp.asarray([1.0, beta0], jnp.float32),
-            capacity=capacity,
+
+def _add(
+    spec: _Spec,
+    state: PrioritizedReplayState,
+    items: Any,
+    priorities: jax.Array | None = None,
+    mask: jax.Array | None = None,
+) -> PrioritizedReplayState:
+    """Store the rows of ``items`` ``[N, ...]`` where ``mask [N]`` is True.
+
+    ``priorities [N]``: raw priorities ``p`` (e.g. ``|δ| + ε`` from a worker's critic; NaN and
+    ``±inf`` take the largest priority, as in ``update_priorities``); default: the current
+    ``max_priority``.
+    """
+    data, slots, keep, pos, size = ring_write(state.data, items, state.insert_pos, state.size, spec.capacity, mask)
+    if priorities is None:
+        p = jnp.full(slots.shape, state.max_priority)
+        scalars = state.scalars
+    else:
+        p = block_tree.raw_priorities(priorities.astype(jnp.float32), state.max_priority, spec.rule, keep)
+        scalars = state.scalars.at[0].max(jnp.max(jnp.where(keep, p, 0.0)))
+    values = p**spec.alpha
+    if spec.tree == "block":
+        tree = block_tree.set(state.tree, slots, values, mask=keep, unique_indices=True, backend=spec.backend)
+    else:
+        tree = sum_tree.set(state.tree, slots, values, mask=keep, unique_indices=True)  # fresh ring slots
+    return state.replace(data=data, tree=tree, insert_pos=pos, size=size, scalars=scalars)
+
+
+def _sample(spec: _Spec, key: jax.Array, state: PrioritizedReplayState) -> PrioritizedSample:
+    """Stratified prioritised mini-batch with probabilities and IS weights at the current β.
+
+    Raises:
+      ValueError: called eagerly (outside ``jit``) on an empty buffer.  Under ``jit`` an empty
+        buffer gives indices 0 with probabilities and weights 0.
+    """
+    if not isinstance(state.size, jax.core.Tracer) and int(state.size) == 0:
+        raise ValueError("sample: the prioritised replay is empty (size 0); call add before sample")
+    if spec.tree == "block":  # the block tree's descent of an empty tree already ends on 0
+        indices, priorities = block_tree.stratified_sample_with_priorities(
+            key, state.tree, batch_size=spec.batch_size, backend=spec.backend
         )
+        total = block_tree.total(state.tree)
+    else:
+        indices, priorities = sum_tree.stratified_sample_with_priorities(key, state.tree, batch_size=spec.batch_size)
+        total = sum_tree.total(state.tree)  # > 0 exactly when size > 0: stored leaves are >= tiny
+        indices = jnp.where(total > 0, indices, 0)
+    probs = priorities / jnp.maximum(total, jnp.finfo(priorities.dtype).tiny)  # empty: 0 / tiny
+    weights = jnp.where(state.size > 0, importance_weights(probs, state.size, state.beta), 0.0)
+    experience = jax.tree.map(lambda d: d[indices], state.data)
+    return PrioritizedSample(experience=experience, indices=indices, probabilities=probs, weights=weights)
 
-    def add(
-        state: PrioritizedReplayState,
-        items: Any,
-        priorities: jax.Array | None = None,
-        mask: jax.Array | None = None,
-    ) -> PrioritizedReplayState:
-        """Store the rows of ``items`` ``[N, ...]`` where ``mask [N]`` is True.
 
-        ``priorities [N]``: raw priorities ``p`` (e.g. ``|δ| + ε`` from a worker's critic; NaN and
-        ``±inf`` take the largest priority, as in ``update_priorities``); default: the current
-        ``max_priority``.
-        """
-        data, slots, keep, pos, size = ring_write(state.data, items, state.insert_pos, state.size, capacity, mask)
-        if priorities is None:
-            p = jnp.full(slots.shape, state.max_priority)
-            scalars = state.scalars
-        else:
-            p = block_tree.raw_priorities(priorities.astype(jnp.float32), state.max_priority, rule, keep)
-            scalars = state.scalars.at[0].max(jnp.max(jnp.where(keep, p, 0.0)))
-        tree = set_tree(state.tree, slots, p**alpha, mask=keep, unique_indices=True)  # fresh ring slots
-        return state.replace(data=data, tree=tree, insert_pos=pos, size=size, scalars=scalars)
+def _update_priorities(
+    spec: _Spec, state: PrioritizedReplayState, indices: jax.Array, td_errors: jax.Array
+) -> PrioritizedReplayState:
+    """Set ``p_i = |δ_i| + ε`` at ``indices [B]`` (repeats: last wins) and anneal β.
 
-    def sample(key: jax.Array, state: PrioritizedReplayState) -> PrioritizedSample:
-        """Stratified prioritised mini-batch with probabilities and IS weights at the current β.
-
-        Raises:
-          ValueError: called eagerly (outside ``jit``) on an empty buffer.  Under ``jit`` an empty
-            buffer gives indices 0 with probabilities and weights 0.
-        """
-        if not isinstance(state.size, jax.core.Tracer) and int(state.size) == 0:
-            raise ValueError("sample: the prioritised replay is empty (size 0); call add before sample")
-        indices, priorities = sample_tree(key, state.tree)
-        total = tree_total(state.tree)  # > 0 exactly when size > 0: stored leaves are >= tiny
-        if tree != "block":  # the block tree's descent of an empty tree already ends on 0
-            indices = jnp.where(total > 0, indices, 0)
-        probs = priorities / jnp.maximum(total, jnp.finfo(priorities.dtype).tiny)  # empty: 0 / tiny
-        weights = jnp.where(state.size > 0, importance_weights(probs, state.size, state.beta), 0.0)
-        experience = jax.tree.map(lambda d: d[indices], state.data)
-        return PrioritizedSample(experience=experience, indices=indices, probabilities=probs, weights=weights)
-
-    def update_priorities(
-        state: PrioritizedReplayState, indices: jax.Array, td_errors: jax.Array
-    ) -> PrioritizedReplayState:
-        """Set ``p_i = |δ_i| + ε`` at ``indices [B]`` (repeats: last wins) and anneal β.
-
-        A NaN or ``±inf`` ``δ_i`` sets ``p_i`` to ``max(max_priority, max p of the batch's finite
-        rows)``, the new ``max_priority`` (count them with :func:`count_nonfinite`); indices outside
-        ``[0, size)`` are ignored: they neither write nor raise ``max_priority``.
-        """
-        indices = indices.astype(jnp.int32)
-        td_errors = td_errors.astype(jnp.float32)
-        if tree == "block":  # the leaves and both scalars in one kernel on a GPU (it checks the indices)
-            new_tree, scalars = block_tree.set_priorities(
-                state.tree, indices, td_errors, state.scalars, rule, backend=backend, size=state.size
-            )
-            return state.replace(tree=new_tree, scalars=scalars)
-        valid = (indices >= 0) & (indices < state.size)
-        p = block_tree.raw_priorities(td_errors, state.max_priority, rule, valid)
-        new_tree = sum_tree.set(state.tree, indices, p**alpha, mask=valid)
-        return state.replace(tree=new_tree, scalars=block_tree.next_scalars(state.scalars, p, valid, rule))
-
-    return PrioritizedReplay(init=init, add=add, sample=sample, update_priorities=update_priorities)
+    A NaN or ``±inf`` ``δ_i`` sets ``p_i`` to ``max(max_priority, max p of the batch's finite
+    rows)``, the new ``max_priority`` (count them with :func:`count_nonfinite`); indices outside
+    ``[0, size)`` are ignored: they neither write nor raise ``max_priority``.
+    """
+    indices = indices.astype(jnp.int32)
+    td_errors = td_errors.astype(jnp.float32)
+    if spec.tree == "block":  # the leaves and both scalars in one kernel on a GPU (it checks the indices)
+        new_tree, scalars = block_tree.set_priorities(
+            state.tree, indices, td_errors, state.scalars, spec.rule, backend=spec.backend, size=state.size
+        )
+        return state.replace(tree=new_tree, scalars=scalars)
+    valid = (indices >= 0) & (indices < state.size)
+    p = block_tree.raw_priorities(td_errors, state.max_priority, spec.rule, valid)
+    new_tree = sum_tree.set(state.tree, indices, p**spec.alpha, mask=valid)
+    return state.replace(tree=new_tree, scalars=block_tree.next_scalars(state.scalars, p, valid, spec.rule))

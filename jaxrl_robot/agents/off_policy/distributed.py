@@ -57,7 +57,7 @@ act with the global parameters); ``collect_*`` are the collecting workers'.
 from __future__ import annotations
 
 import functools
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -140,6 +140,25 @@ def _split_collected(got: Collected, n: int) -> tuple[Collected, Collected]:
             Collected(*tail, sums=jax.tree.map(lambda x: x[1], got.sums)))  # fmt: skip
 
 
+class _Workers(NamedTuple):
+    """What the functions of a distributed trainer share (static).
+
+    Attributes:
+      s: the single learner's :class:`~jaxrl_robot.agents.off_policy.trainer.Setup`.
+      local_workers, local_collectors: synchronous and collecting workers per device.
+      noise_factors: ``[C]`` each collecting worker's noise factor.
+    """
+
+    s: trainer.Setup
+    local_workers: int
+    local_collectors: int
+    noise_factors: jax.Array
+
+    @property
+    def config(self) -> OffPolicyConfig:
+        return self.s.config
+
+
 def make_distributed_trainer(config: OffPolicyConfig, env: Env, make_member: MakeMember, **options: Any) -> Trainer:
     """The distributed :class:`~jaxrl_robot.types.Trainer` of the algorithm ``make_member``; ``options`` are
     ``trainer.make_trainer``'s keywords (``mesh``, ``iterations_per_update``), which hands distributed
@@ -156,122 +175,146 @@ def make_distributed_trainer(config: OffPolicyConfig, env: Env, make_member: Mak
     for name in ("sync_workers", "collect_workers"):
         if getattr(config, name) % devices:
             raise ValueError(f"{name}={getattr(config, name)} must be a multiple of the number of devices ({devices})")
-    local_workers = config.sync_workers // devices
-    C, F = config.collect_workers, config.fetch_every
-    local_collectors = C // devices
+    C = config.collect_workers
     noise_factors = jnp.broadcast_to(jnp.asarray(config.collect_noise_factors or (1.0,), jnp.float32), (C,))
+    w = _Workers(s, config.sync_workers // devices, C // devices, noise_factors)
+    specs = trainer.state_specs(DistributedState, collectors=parallel.P(parallel.LANES) if C else None)
+    return s.run.trainer(functools.partial(_init, w), s.run.shard(functools.partial(_chunk, w), specs),
+                         functools.partial(trainer.greedy_policy, s))  # fmt: skip
+
+
+def _copies_of(state: OffPolicyState, n: int) -> tuple:
+    """The global ``(actor, critic, obs stats)`` repeated ``n`` times: ``[n, ...]`` leaves."""
+    fresh = (state.actor_params, state.critic_params, state.obs_stats)
+    return jax.tree.map(lambda x: jnp.broadcast_to(x, (n,) + x.shape), fresh)
+
+
+def _init(w: _Workers, key: jax.Array) -> DistributedState:
+    """The single learner's initial state plus the collecting workers' lanes and copies (``fold_in(key, 1)``)."""
+    s, config = w.s, w.config
+    base = trainer.init_state(s, key)
+    fields = {name: getattr(base, name) for name in OffPolicyState.__dataclass_fields__}
+    if not config.collect_workers:
+        return DistributedState(**fields, collectors=None)
+
+    def start(keys: jax.Array, state: OffPolicyState) -> Collectors:
+        env_state, noise_state = s.acting.reset(keys)
+        actor, critic, stats = _copies_of(state, w.local_collectors)
+        return Collectors(env_state, noise_state, actor, critic, stats, jnp.zeros((w.local_collectors,), jnp.int32))
+
+    keys = jax.random.split(jax.random.fold_in(key, 1), config.collect_workers * config.collect_lanes)
     lanes, same = parallel.P(parallel.LANES), parallel.P()
+    collectors = parallel.shard_lanes(start, s.run.mesh, (lanes, same), lanes)(keys, base)
+    return DistributedState(**fields, collectors=collectors)
 
-    def copies_of(state: OffPolicyState, n: int) -> tuple:
-        """The global ``(actor, critic, obs stats)`` repeated ``n`` times: ``[n, ...]`` leaves."""
-        fresh = (state.actor_params, state.critic_params, state.obs_stats)
-        return jax.tree.map(lambda x: jnp.broadcast_to(x, (n,) + x.shape), fresh)
 
-    def init(key: jax.Array) -> DistributedState:
-        base = trainer.init_state(s, key)
-        fields = {name: getattr(base, name) for name in OffPolicyState.__dataclass_fields__}
-        if not C:
-            return DistributedState(**fields, collectors=None)
+def _fetch(config: OffPolicyConfig, state: DistributedState, ids: jax.Array) -> tuple[Collectors, jax.Array]:
+    """This device's collectors ``ids [c]`` after the fetches due at ``state.iteration``, and their staleness."""
+    col, t, F = state.collectors, state.iteration, config.fetch_every
+    due = (t - fetch_phases(ids, config.collect_workers, F)) % F == 0
+    actor, critic, stats = lane_select(due, _copies_of(state, ids.shape[0]),
+                                       (col.actor_params, col.critic_params, col.obs_stats))
+    col = col.replace(actor_params=actor, critic_params=critic, obs_stats=stats,
+                      fetched=jnp.where(due, t, col.fetched))
+    return col, t - col.fetched
 
-        def start(keys: jax.Array, state: OffPolicyState) -> Collectors:
-            env_state, noise_state = s.acting.reset(keys)
-            actor, critic, stats = copies_of(state, local_collectors)
-            return Collectors(env_state, noise_state, actor, critic, stats, jnp.zeros((local_collectors,), jnp.int32))
 
-        keys = jax.random.split(jax.random.fold_in(key, 1), C * config.collect_lanes)
-        collectors = parallel.shard_lanes(start, s.run.mesh, (lanes, same), lanes)(keys, base)
-        return DistributedState(**fields, collectors=collectors)
+def _group_policy(
+    w: _Workers, lane_ids: jax.Array, col: Collectors, factors: jax.Array | None, uniform: jax.Array | None
+) -> LanePolicy:
+    """Each collector acts in its lanes with its own copy: ``explore`` vmapped over this device's collectors."""
+    n = w.local_collectors
 
-    def fetch(state: DistributedState, ids: jax.Array) -> tuple[Collectors, jax.Array]:
-        """This device's collectors ``ids [c]`` after the fetches due at ``state.iteration``, and their staleness."""
-        col, t = state.collectors, state.iteration
-        due = (t - fetch_phases(ids, C, F)) % F == 0
-        actor, critic, stats = lane_select(due, copies_of(state, ids.shape[0]),
-                                           (col.actor_params, col.critic_params, col.obs_stats))
-        col = col.replace(actor_params=actor, critic_params=critic, obs_stats=stats,
-                          fetched=jnp.where(due, t, col.fetched))
-        return col, t - col.fetched
+    def policy(key: jax.Array, obs: jax.Array, nstate: NoiseState) -> tuple[jax.Array, NoiseState]:
+        def one(ids, params, stats, o, ns, f):
+            return w.s.acting.explore(key, ids, params, stats, o, ns, f, uniform)
 
-    def group_policy(
-        lane_ids: jax.Array, col: Collectors, factors: jax.Array | None, uniform: jax.Array | None
-    ) -> LanePolicy:
-        """Each collector acts in its lanes with its own copy: ``explore`` vmapped over this device's collectors."""
-        n = local_collectors
+        grouped = jax.tree.map(lambda x: _groups(x, n), (lane_ids, obs, nstate))
+        a, nstate = jax.vmap(one)(grouped[0], col.actor_params, col.obs_stats, grouped[1], grouped[2], factors)
+        return jax.tree.map(_ungroup, (a, nstate))
 
-        def policy(key: jax.Array, obs: jax.Array, nstate: NoiseState) -> tuple[jax.Array, NoiseState]:
-            def one(ids, params, stats, o, ns, f):
-                return s.acting.explore(key, ids, params, stats, o, ns, f, uniform)
+    return policy
 
-            grouped = jax.tree.map(lambda x: _groups(x, n), (lane_ids, obs, nstate))
-            a, nstate = jax.vmap(one)(grouped[0], col.actor_params, col.obs_stats, grouped[1], grouped[2], factors)
-            return jax.tree.map(_ungroup, (a, nstate))
 
-        return policy
+def _priorities(s: trainer.Setup, copies: tuple, rows: Any, n: int) -> jax.Array:
+    """Initial priorities ``[n·l, N]`` of rows ``[n·l, N]``: lane group ``g`` under the copies ``[g]``
+    of ``copies = (actor, critic, stats)`` with ``[n, ...]`` leaves."""
+    groups = jax.tree.map(lambda x: x.reshape((n, -1) + x.shape[2:]), rows)  # [n, l·N, ...]
+    return jax.vmap(s.learner.priorities)(*copies, groups).reshape(rows.reward.shape)
 
-    def priorities(copies: tuple, rows: Any, n: int) -> jax.Array:
-        """Initial priorities ``[n·l, N]`` of rows ``[n·l, N]``: lane group ``g`` under the copies ``[g]``
-        of ``copies = (actor, critic, stats)`` with ``[n, ...]`` leaves."""
-        groups = jax.tree.map(lambda x: x.reshape((n, -1) + x.shape[2:]), rows)  # [n, l·N, ...]
-        return jax.vmap(s.learner.priorities)(*copies, groups).reshape(rows.reward.shape)
 
-    def both_policy(sync: LanePolicy, col: LanePolicy, n: int) -> LanePolicy:
-        """The synchronous lanes ``[:n]`` under ``sync``, the collecting lanes ``[n:]`` under ``col``."""
+def _both_policy(sync: LanePolicy, col: LanePolicy, n: int) -> LanePolicy:
+    """The synchronous lanes ``[:n]`` under ``sync``, the collecting lanes ``[n:]`` under ``col``."""
 
-        def policy(key: jax.Array, obs: jax.Array, nstate: NoiseState) -> tuple[jax.Array, NoiseState]:
-            head, tail = _split((obs, nstate), n)
-            return _concat(sync(key, *head), col(key, *tail))
+    def policy(key: jax.Array, obs: jax.Array, nstate: NoiseState) -> tuple[jax.Array, NoiseState]:
+        head, tail = _split((obs, nstate), n)
+        return _concat(sync(key, *head), col(key, *tail))
 
-        return policy
+    return policy
 
-    def iteration(state: DistributedState, ids: dict[str, jax.Array]) -> tuple[DistributedState, tuple]:
-        key, k_act, k_learn = jax.random.split(state.key, 3)
-        factor = trainer.noise_factor(config, state.iteration)
-        uniform = trainer.warming_up(config, state)
-        policy = s.acting.policy(ids["lanes"], state.actor_params, state.obs_stats, factor, uniform)
-        if C:
-            # Both kinds of worker step as one batch of lanes (one env step per time step, not
-            # two); lane ids, and so every lane's randomness, are as if each kind acted alone.
-            col, staleness = fetch(state, ids["collectors"])
-            factors = noise_factors[ids["collectors"]]
-            factors = factors if factor is None else factors * factor
-            n = s.run.local_lanes
-            both = both_policy(policy, group_policy(ids["collect_lanes"], col, factors, uniform), n)
-            env_state, noise_state = _concat((state.env_state, state.noise_state), (col.env_state, col.noise_state))
-            both_got = s.acting.collect(k_act, jnp.concatenate([ids["lanes"], ids["collect_lanes"]]), both,
-                                        env_state, noise_state, split=n)  # fmt: skip
-            got, col_got = _split_collected(both_got, n)
-        else:
-            got = s.acting.collect(k_act, ids["lanes"], policy, state.env_state, state.noise_state)
-        prio = priorities(copies_of(state, 1), got.rows, 1) if config.per else None
-        (rows, prio), mask = s.acting.gather((got.rows, prio), got.mask)
-        state = state.replace(env_state=got.env_state, noise_state=got.noise_state)
-        extra = {}
-        if C:
-            copies = (col.actor_params, col.critic_params, col.obs_stats)
-            col_prio = priorities(copies, col_got.rows, local_collectors) if config.per else None
-            (col_rows, col_prio), col_mask = s.acting.gather((col_got.rows, col_prio), col_got.mask)
-            rows, prio, mask = _concat((rows, prio, mask), (col_rows, col_prio, col_mask))
-            state = state.replace(collectors=col.replace(env_state=col_got.env_state, noise_state=col_got.noise_state))
-            extra = {"episodes": col_got.sums, "staleness": parallel.all_gather(staleness)}
-        state = trainer.store(s, state, rows, mask, prio)
-        state, sums, count = s.learner.learn(state, k_learn, s.updates_per_iteration, worker_shards(ids["workers"]))
-        state = state.replace(key=key, iteration=state.iteration + 1)
-        return state, (sums, count, got.sums, extra)
 
-    def chunk_fn(state: DistributedState) -> tuple[DistributedState, Metrics]:
-        ids = {
-            "lanes": parallel.global_lane_ids(s.run.local_lanes),
-            "workers": parallel.global_lane_ids(local_workers),
-            "collectors": parallel.global_lane_ids(local_collectors),
-            "collect_lanes": config.num_envs + parallel.global_lane_ids(local_collectors * config.collect_lanes),
-        }
-        state, metrics, extra = trainer.run_chunk(s, state, lambda st: iteration(st, ids))
-        if C:
-            metrics.update(core.episode_means(jax.tree.map(jnp.sum, extra["episodes"]), "collect_"))
-            staleness = extra["staleness"].astype(jnp.float32)  # [chunk, C]
-            metrics["staleness_mean"] = jnp.mean(staleness)
-            metrics["staleness_max"] = jnp.max(staleness)
-        return state, metrics
+def _act_both(
+    w: _Workers, state: DistributedState, ids: dict[str, jax.Array], k_act: jax.Array, policy: LanePolicy,
+    factor: jax.Array | None, uniform: jax.Array | None,
+) -> tuple[Collected, Collected, Collectors, jax.Array]:
+    """Both kinds of worker step as one batch of lanes (one env step per time step, not two); lane ids, and so
+    every lane's randomness, are as if each kind acted alone.  Returns the synchronous lanes' and the collecting
+    lanes' :class:`Collected`, the collectors after their fetches and their staleness ``[c]``."""
+    s = w.s
+    col, staleness = _fetch(w.config, state, ids["collectors"])
+    factors = w.noise_factors[ids["collectors"]]
+    factors = factors if factor is None else factors * factor
+    n = s.run.local_lanes
+    both = _both_policy(policy, _group_policy(w, ids["collect_lanes"], col, factors, uniform), n)
+    env_state, noise_state = _concat((state.env_state, state.noise_state), (col.env_state, col.noise_state))
+    both_got = s.acting.collect(k_act, jnp.concatenate([ids["lanes"], ids["collect_lanes"]]), both,
+                                env_state, noise_state, split=n)  # fmt: skip
+    got, col_got = _split_collected(both_got, n)
+    return got, col_got, col, staleness
 
-    specs = trainer.state_specs(DistributedState, collectors=lanes if C else None)
-    return s.run.trainer(init, s.run.shard(chunk_fn, specs), functools.partial(trainer.greedy_policy, s))
+
+def _iteration(w: _Workers, state: DistributedState, ids: dict[str, jax.Array]) -> tuple[DistributedState, tuple]:
+    """Act (both kinds of worker), store every worker's rows with their priorities, then one learning phase of
+    the synchronous workers; ``ids``: this device's global lane, worker and collector indices."""
+    s, config = w.s, w.config
+    key, k_act, k_learn = jax.random.split(state.key, 3)
+    factor = trainer.noise_factor(config, state.iteration)
+    uniform = trainer.warming_up(config, state)
+    policy = s.acting.policy(ids["lanes"], state.actor_params, state.obs_stats, factor, uniform)
+    if config.collect_workers:
+        got, col_got, col, staleness = _act_both(w, state, ids, k_act, policy, factor, uniform)
+    else:
+        got = s.acting.collect(k_act, ids["lanes"], policy, state.env_state, state.noise_state)
+    prio = _priorities(s, _copies_of(state, 1), got.rows, 1) if config.per else None
+    (rows, prio), mask = s.acting.gather((got.rows, prio), got.mask)
+    state = state.replace(env_state=got.env_state, noise_state=got.noise_state)
+    extra = {}
+    if config.collect_workers:
+        copies = (col.actor_params, col.critic_params, col.obs_stats)
+        col_prio = _priorities(s, copies, col_got.rows, w.local_collectors) if config.per else None
+        (col_rows, col_prio), col_mask = s.acting.gather((col_got.rows, col_prio), col_got.mask)
+        rows, prio, mask = _concat((rows, prio, mask), (col_rows, col_prio, col_mask))
+        state = state.replace(collectors=col.replace(env_state=col_got.env_state, noise_state=col_got.noise_state))
+        extra = {"episodes": col_got.sums, "staleness": parallel.all_gather(staleness)}
+    state = trainer.store(s, state, rows, mask, prio)
+    state, sums, count = s.learner.learn(state, k_learn, s.updates_per_iteration, worker_shards(ids["workers"]))
+    state = state.replace(key=key, iteration=state.iteration + 1)
+    return state, (sums, count, got.sums, extra)
+
+
+def _chunk(w: _Workers, state: DistributedState) -> tuple[DistributedState, Metrics]:
+    """A chunk of iterations on this device (inside ``shard_lanes``), with the collecting workers' metrics."""
+    s, config = w.s, w.config
+    ids = {
+        "lanes": parallel.global_lane_ids(s.run.local_lanes),
+        "workers": parallel.global_lane_ids(w.local_workers),
+        "collectors": parallel.global_lane_ids(w.local_collectors),
+        "collect_lanes": config.num_envs + parallel.global_lane_ids(w.local_collectors * config.collect_lanes),
+    }
+    state, metrics, extra = trainer.run_chunk(s, state, lambda st: _iteration(w, st, ids))
+    if config.collect_workers:
+        metrics.update(core.episode_means(jax.tree.map(jnp.sum, extra["episodes"]), "collect_"))
+        staleness = extra["staleness"].astype(jnp.float32)  # [chunk, C]
+        metrics["staleness_mean"] = jnp.mean(staleness)
+        metrics["staleness_max"] = jnp.max(staleness)
+    return state, metrics

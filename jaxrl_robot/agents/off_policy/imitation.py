@@ -23,6 +23,7 @@ resumed run continues exactly.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
@@ -79,6 +80,18 @@ class Imitation(NamedTuple):
     anchor: Callable[..., jax.Array] | None = None
 
 
+class _Stage(NamedTuple):
+    """What the functions of the imitation stage share (static): the config, the env's expert
+    (``State -> a*``), the pairs' memory, the imitation optimiser, the actor's ``act`` and ``norm``."""
+
+    config: OffPolicyConfig
+    expert: Callable[[State], jax.Array]
+    memory: Any
+    tx: optax.GradientTransformation
+    act: Callable[[Any, jax.Array], jax.Array]
+    norm: Callable[[RunningStats, jax.Array], jax.Array]
+
+
 def make_imitation(
     config: OffPolicyConfig, env: Env, act: Callable[[Any, jax.Array], jax.Array],
     norm: Callable[[RunningStats, jax.Array], jax.Array],
@@ -97,69 +110,93 @@ def make_imitation(
             f"pretrain={config.pretrain!r} needs an env with an expert (env.expert(state) -> action); "
             f"{type(env).__name__} has none: use pretrain='none'"
         )
-    iterations = config.pretrain_iterations
     memory = make_uniform_replay(config.imitation_buffer, config.imitation_batch)
-    tx = optax.adam(config.imitation_lr)
+    stage = _Stage(config, expert, memory, optax.adam(config.imitation_lr), act, norm)
+    return Imitation(
+        iterations=config.pretrain_iterations,
+        init=functools.partial(_init, stage),
+        active=functools.partial(_active, config),
+        teacher=functools.partial(_teacher, stage),
+        learn=functools.partial(_learn, stage),
+        anchor=functools.partial(_demo_loss, stage) if _anchor_in_loss(config) else None,
+    )
 
-    def init(actor_params: Any, obs_size: int, action_size: int) -> tuple[Any, Any]:
-        example = Demo(jnp.zeros((obs_size,), jnp.float32), jnp.zeros((action_size,), jnp.float32))
-        return memory.init(example), tx.init(actor_params)
 
-    def active(iteration: jax.Array) -> jax.Array:
-        return iteration < iterations
+def _init(stage: _Stage, actor_params: Any, obs_size: int, action_size: int) -> tuple[Any, Any]:
+    """An empty memory of pairs and the imitation optimiser's state."""
+    example = Demo(jnp.zeros((obs_size,), jnp.float32), jnp.zeros((action_size,), jnp.float32))
+    return stage.memory.init(example), stage.tx.init(actor_params)
 
-    def labelling(iteration: jax.Array) -> jax.Array:
-        """Whether the expert labels this iteration's states: in the stage, or always with an anchor."""
-        return active(iteration) | (config.imitation_weight > 0)
 
-    def teacher(lane_ids: jax.Array, iteration: jax.Array) -> Teacher:
-        share = teacher_share(iteration, iterations, config.expert_share)
+def _active(config: OffPolicyConfig, iteration: jax.Array) -> jax.Array:
+    """``[]`` bool: ``iteration`` is in the stage."""
+    return iteration < config.pretrain_iterations
 
-        def run(key: jax.Array, state: State, action: jax.Array) -> tuple[jax.Array, jax.Array]:
-            def label(_):
-                a_star = jax.vmap(expert)(state).astype(action.dtype)
-                return mix_teacher(key, lane_ids, action, a_star, share), a_star
 
-            return jax.lax.cond(labelling(iteration), label, lambda _: (action, jnp.zeros_like(action)), None)
+def _anchor_in_loss(config: OffPolicyConfig) -> bool:
+    """After the stage the actor's loss takes the behaviour-cloning term (``imitation_anchor='loss'``, a weight)."""
+    return config.imitation_anchor == "loss" and config.imitation_weight > 0
 
-        return run
 
-    def demo_loss(key: jax.Array, params: Any, stats: RunningStats, buf: Any) -> jax.Array:
-        """The actor's imitation loss on ``imitation_batch`` pairs drawn from ``buf`` with ``key``."""
-        batch = memory.sample(key, buf).experience
-        mean = act(params, norm(stats, batch.obs))
-        ones = jnp.ones(batch.obs.shape[:1], jnp.float32)
-        return imitation_loss(mean, batch.action, ones, jnp.asarray(ones.shape[0], jnp.float32))
+def _labelling(config: OffPolicyConfig, iteration: jax.Array) -> jax.Array:
+    """Whether the expert labels this iteration's states: in the stage, or always with an anchor."""
+    return _active(config, iteration) | (config.imitation_weight > 0)
 
-    def update(stats: RunningStats, scale: jax.Array, carry: tuple, key: jax.Array) -> tuple[tuple, jax.Array]:
-        params, opt, buf = carry
-        loss, grads = jax.value_and_grad(lambda p: demo_loss(key, p, stats, buf))(params)
-        updates, opt = tx.update(grads, opt, params)
-        updates = jax.tree.map(lambda u: scale * u, updates)
-        return (optax.apply_updates(params, updates), opt, buf), loss
 
-    in_loss = config.imitation_anchor == "loss" and config.imitation_weight > 0
+def _teacher(stage: _Stage, lane_ids: jax.Array, iteration: jax.Array) -> Teacher:
+    """:attr:`Imitation.teacher`."""
+    config = stage.config
+    share = teacher_share(iteration, config.pretrain_iterations, config.expert_share)
 
-    def learn(key, params, opt, buf, stats, obs, labels, iteration):
-        scale = jnp.where(active(iteration), 1.0, config.imitation_weight).astype(jnp.float32)
-        nan = jnp.full((), jnp.nan, jnp.float32)
+    def run(key: jax.Array, state: State, action: jax.Array) -> tuple[jax.Array, jax.Array]:
+        def label(_):
+            a_star = jax.vmap(stage.expert)(state).astype(action.dtype)
+            return mix_teacher(key, lane_ids, action, a_star, share), a_star
 
-        def run(args):
-            params, opt, buf = args
-            buf = memory.add(buf, Demo(obs, labels))
-            keys = jax.random.split(key, config.imitation_updates)
-            (params, opt, buf), loss = jax.lax.scan(lambda c, k: update(stats, scale, c, k), (params, opt, buf), keys)
-            return params, opt, buf, jnp.mean(loss)
+        return jax.lax.cond(_labelling(config, iteration), label, lambda _: (action, jnp.zeros_like(action)), None)
 
-        def store(args):
-            """After the stage with the anchor in the DDPG loss: the pairs only."""
-            params, opt, buf = args
-            return params, opt, memory.add(buf, Demo(obs, labels)), nan
+    return run
 
-        def labelled(args):
-            return jax.lax.cond(active(iteration), run, store, args) if in_loss else run(args)
 
-        return jax.lax.cond(labelling(iteration), labelled, lambda args: (*args, nan), (params, opt, buf))
+def _demo_loss(stage: _Stage, key: jax.Array, params: Any, stats: RunningStats, buf: Any) -> jax.Array:
+    """The actor's imitation loss on ``imitation_batch`` pairs drawn from ``buf`` with ``key``."""
+    batch = stage.memory.sample(key, buf).experience
+    mean = stage.act(params, stage.norm(stats, batch.obs))
+    ones = jnp.ones(batch.obs.shape[:1], jnp.float32)
+    return imitation_loss(mean, batch.action, ones, jnp.asarray(ones.shape[0], jnp.float32))
 
-    return Imitation(iterations=iterations, init=init, active=active, teacher=teacher, learn=learn,
-                     anchor=demo_loss if in_loss else None)  # fmt: skip
+
+def _update(
+    stage: _Stage, stats: RunningStats, scale: jax.Array, carry: tuple, key: jax.Array
+) -> tuple[tuple, jax.Array]:
+    """One imitation step of the actor, ``carry = (params, optimiser state, memory)``, its Adam step times ``scale``."""
+    params, opt, buf = carry
+    loss, grads = jax.value_and_grad(lambda p: _demo_loss(stage, key, p, stats, buf))(params)
+    updates, opt = stage.tx.update(grads, opt, params)
+    updates = jax.tree.map(lambda u: scale * u, updates)
+    return (optax.apply_updates(params, updates), opt, buf), loss
+
+
+def _learn(stage: _Stage, key, params, opt, buf, stats, obs, labels, iteration):
+    """:attr:`Imitation.learn`."""
+    config = stage.config
+    scale = jnp.where(_active(config, iteration), 1.0, config.imitation_weight).astype(jnp.float32)
+    nan = jnp.full((), jnp.nan, jnp.float32)
+
+    def run(args):
+        params, opt, buf = args
+        buf = stage.memory.add(buf, Demo(obs, labels))
+        keys = jax.random.split(key, config.imitation_updates)
+        step = functools.partial(_update, stage, stats, scale)
+        (params, opt, buf), loss = jax.lax.scan(step, (params, opt, buf), keys)
+        return params, opt, buf, jnp.mean(loss)
+
+    def store(args):
+        """After the stage with the anchor in the DDPG loss: the pairs only."""
+        params, opt, buf = args
+        return params, opt, stage.memory.add(buf, Demo(obs, labels)), nan
+
+    def labelled(args):
+        return jax.lax.cond(_active(config, iteration), run, store, args) if _anchor_in_loss(config) else run(args)
+
+    return jax.lax.cond(_labelling(config, iteration), labelled, lambda args: (*args, nan), (params, opt, buf))
