@@ -1,4 +1,4 @@
-"""``arm7``: a redundant 7-DOF arm reaching random goals (SPEC §E1; thesis §3.4, §4.1.3, §5.4).
+"""``arm7``: a redundant 7-DOF arm reaching random goals (thesis §3.4, §4.1.3, §5.4).
 
 Each episode starts from a random joint configuration and a random goal, both the end-effector
 position of a random joint configuration inside the feasible region.  The action is a change of

@@ -82,8 +82,3 @@ def apply_overrides(config: C, overrides: Mapping[str, Any], owner: str = "confi
             value = tuple(value)
         clean[name] = value
     return dataclasses.replace(config, **clean)
-
-
-def config_to_dict(config: Any) -> dict[str, Any]:
-    """A JSON-friendly dict of a config dataclass (tuples become lists)."""
-    return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(config).items()}

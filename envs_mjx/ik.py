@@ -1,4 +1,4 @@
-"""Serial-chain kinematics and inverse kinematics in plain JAX (SPEC §E1, thesis §3.4.1).
+"""Serial-chain kinematics and inverse kinematics in plain JAX (thesis §3.4.1).
 
 The arm's forward kinematics and its site Jacobian are read off a compiled ``mujoco.MjModel``
 (:func:`chain_from_model`) and evaluated with a few 3x3 products per joint.  MuJoCo's C engine

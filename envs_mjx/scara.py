@@ -1,4 +1,4 @@
-"""``scara`` — SCARA end-effector trajectory tracking in MJX (thesis §3.5.1, §3.5.3; SPEC §E2).
+"""``scara`` — SCARA end-effector trajectory tracking in MJX (thesis §3.5.1, §3.5.3).
 
 Model (``assets/scara.xml``): revolute θ1 (axis +z), revolute θ2 (axis −z), prismatic d3 (axis −z);
 the end-effector site sits at Eq. 3.15,

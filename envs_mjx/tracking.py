@@ -1,4 +1,4 @@
-"""Shared machinery of the trajectory-tracking environments (thesis §3.5.2, §5.5; SPEC §E5).
+"""Shared machinery of the trajectory-tracking environments (thesis §3.5.2, §5.5).
 
 * **Random reference-state initialisation (RSI)** — :func:`rsi_index` draws the start step of an
   episode uniformly from the window ``[start_lo, start_hi]`` (fractions of the reference).

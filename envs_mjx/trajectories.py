@@ -2,7 +2,7 @@
 
 All functions are pure and take a time ``t`` in seconds (a scalar; vmap for many times).
 
-Planar references (mobile robot, SPEC §E3):
+Planar references (mobile robot, thesis §3.5.4):
 
 * ``sine`` (Eq. 3.24–3.25): ``x_r = t``, ``y_r = 2 sin(0.2 t)``; heading ``θ_r = arctan(ẏ_r / ẋ_r)``
   in ``(-π/2, π/2)``.
@@ -13,7 +13,7 @@ Each gives the reference pose ``[x_r, y_r, θ_r]``, its rate ``[ẋ_r, ẏ_r, θ
 commands ``[v_r, w_r]`` of the unicycle model (Eq. 3.18): ``v_r = |(ẋ_r, ẏ_r)|`` (the heading is the
 direction of motion, so ``v_r >= 0``) and ``w_r = θ̇_r = (ẋ_r ÿ_r − ẏ_r ẍ_r) / (ẋ_r² + ẏ_r²)``.
 
-Joint references (SCARA, SPEC §E2): sinusoids ``q_r = c + A sin(ω t + φ)`` per joint.
+Joint references (SCARA, thesis §3.5.3): sinusoids ``q_r = c + A sin(ω t + φ)`` per joint.
 """
 
 from __future__ import annotations

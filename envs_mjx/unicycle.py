@@ -1,4 +1,4 @@
-"""``unicycle`` — differential-drive mobile robot trajectory tracking (thesis §3.5.1, §3.5.4; SPEC §E3).
+"""``unicycle`` — differential-drive mobile robot trajectory tracking (thesis §3.5.1, §3.5.4).
 
 Action ``a ∈ [-1, 1]^2``: the forward speed and turn rate ``(v, w) = C ⊙ a`` in the robot frame,
 ``C = action_scale``.

@@ -1,10 +1,10 @@
 """Rollouts: ``N`` steps of a batched, auto-resetting environment under ``lax.scan``.
 
 The environment is one wrapped by ``envs_mjx.wrap_for_training`` (vmapped lanes, time limit
-with ``info["truncation"]``, true auto-reset with ``info["final_obs"]``).  :func:`rollout` runs
-every lane for all ``N`` steps; :func:`rollout_until_done` stops each lane at the end of its
-episode (a local buffer that closes early, thesis Algorithm 3, line 8); :func:`rollout_with_memory`
-carries a recurrent policy's memory per lane (a new episode's from ``start_memory``).  Randomness per lane is
+with ``info["truncation"]``, true auto-reset with ``info["final_obs"]``).  :func:`rollout_with_memory`
+runs every lane for all ``N`` steps, carrying a policy's memory per lane (a new episode's from
+``start_memory``; ``()`` for a memoryless policy); :func:`rollout_until_done` stops each lane at the
+end of its episode (a local buffer that closes early, thesis Algorithm 3, line 8).  Randomness per lane is
 keyed by global lane index (:func:`per_lane_keys`), so results do not depend on how lanes are
 spread over devices.
 """
@@ -26,7 +26,6 @@ __all__ = [
     "env_step",
     "lane_select",
     "per_lane_keys",
-    "rollout",
     "rollout_until_done",
     "rollout_with_memory",
 ]
@@ -59,28 +58,6 @@ def env_step(env: Env, state: State, action: jax.Array) -> tuple[State, Transiti
     return nstate, transition
 
 
-def rollout(
-    key: jax.Array, env: Env, state: State, policy: StochasticPolicy, num_steps: int
-) -> tuple[State, Transition]:
-    """Run ``policy`` for ``num_steps`` steps in every lane.
-
-    Args:
-      key: PRNG key; step ``t`` gives the policy ``split(key, num_steps)[t]``.
-      env: a batched env from ``envs_mjx.wrap_for_training``.
-      state: its current ``State`` ``[B]``.
-      policy: ``(key, obs [B, D]) -> action [B, A]``.
-      num_steps: N.
-    Returns:
-      ``(final state, Transition [N, B])``.
-    """
-
-    def step(k: jax.Array, memory: tuple, s: State) -> tuple[tuple, jax.Array, tuple]:
-        return memory, policy(k, s.obs), ()
-
-    state, _, (traj, _) = rollout_with_memory(key, env, state, (), step, num_steps, lambda ns: ())
-    return state, traj
-
-
 def rollout_with_memory(
     key: jax.Array,
     env: Env,
@@ -90,10 +67,14 @@ def rollout_with_memory(
     num_steps: int,
     start_memory: Callable[[State], Any],
 ) -> tuple[State, Any, tuple[Transition, Any]]:
-    """:func:`rollout` of a policy with memory (a recurrent network's carry, per lane).
+    """Run ``policy`` for ``num_steps`` steps in every lane, carrying its memory (a recurrent network's carry,
+    per lane).
 
     Args:
-      key, env, state, num_steps: as :func:`rollout`.
+      key: PRNG key; step ``t`` gives the policy ``split(key, num_steps)[t]``.
+      env: a batched env from ``envs_mjx.wrap_for_training``.
+      state: its current ``State`` ``[B]``.
+      num_steps: N.
       memory: ``[B, ...]`` pytree the policy starts the first step from.
       policy: ``(key, memory [B, ...], state [B]) -> (memory, action [B, A], record)``; ``record``
         is any pytree ``[B, ...]`` kept per step (e.g. the memory the step started from).
@@ -122,7 +103,9 @@ def rollout_until_done(
     A lane whose episode ends at step ``t`` idles for the remaining steps: its state is held and
     its later transitions carry ``termination = truncation = done = 0`` and ``mask = 0``.
 
-    Args: as :func:`rollout`.
+    Args:
+      key, env, state, num_steps: as :func:`rollout_with_memory`.
+      policy: ``(key, obs [B, D]) -> action [B, A]``.
     Returns:
       ``(final state [B], Transition [N, B], mask [N, B])``; ``mask`` is 1.0 on the steps taken.
     """

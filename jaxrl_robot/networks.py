@@ -14,7 +14,7 @@ Networks are plain ``flax.linen`` modules: ``variables = net.init(key, obs)`` an
   leaves the mean linear, for a policy whose sample an env wrapper squashes. With
   ``batch_norm=True`` the input and every hidden pre-activation are batch-normalised (thesis
   Fig. 4.2–4.3): batch statistics while training, moving averages for acting and evaluation
-  (SPEC §A11).
+  (thesis §4.1.3).
 * :class:`BatchRenorm` — the actor's default batch-norm layer: batch renormalisation (Ioffe,
   2017). Plain batch-norm trains the policy that normalises each mini-batch by its own
   statistics, but acts and is evaluated with the moving averages; with a few lanes a mini-batch

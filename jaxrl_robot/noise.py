@@ -14,8 +14,8 @@ It is an AR(1) process with ``E[x_t] = η + (1 − σ1)^t (x_0 − η)`` and, fo
 stationary variance ``σ2² / (σ1 (2 − σ1))``.  Each episode starts at ``x_0 = η``.
 
 Table 6.1 (driving) is printed with the header (η, σ1, σ2), but read that way the steering
-noise would have mean 0.8 and the car would always turn.  Following SPEC §H, its columns
-are read as (reversion σ1, mean η, scale σ2): :data:`TABLE_6_1_DRIVING` gives steering
+noise would have mean 0.8 and the car would always turn.  So its columns are read
+as (reversion σ1, mean η, scale σ2): :data:`TABLE_6_1_DRIVING` gives steering
 (σ1 0.8, η 0, σ2 0.2), acceleration (1, 0.5, 0.1) and brake (1, −0.1, 0.05).
 """
 
