@@ -444,6 +444,8 @@ class RaceCar(RobotEnv):
     name = "racecar"
     Config = RaceCarConfig
     action_size = 3
+    evaluation_kind = "racing"
+    """How a policy is evaluated on this env: laps on every road (:func:`make_lap_test`)."""
 
     @property
     def observation_size(self) -> int:

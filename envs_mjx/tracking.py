@@ -75,6 +75,8 @@ class TrackingEnv(RobotEnv):
     """
 
     build_model: Callable[[Any], Any]
+    evaluation_kind = "tracking"
+    """How a policy is evaluated on this env: the test episode from ``t = 0`` (:func:`test_episode`)."""
 
     def __init__(self, config: Any | None = None, **overrides: Any):
         super().__init__(config, **overrides)

@@ -11,11 +11,17 @@
   closest approach to the goal, and that distance's distribution.
 * :func:`tracking_error_sums` — per-axis sums of absolute tracking errors over one test
   episode (Tables 4.3-4.5, 5.4-5.7), with the mean per step and the number of steps.
+
+* :func:`evaluate` — a policy's evaluation as ``python -m train.<algo>`` reports it, chosen by the env
+  (:func:`evaluation_kind`): test episodes (reaching), the test episode from ``t = 0`` (tracking) or laps on
+  every road (racing); :func:`evaluation_program` and :func:`summarize_evaluation` are the same as a pure
+  ``(key, train state) -> arrays`` function and its summary; :func:`evaluation_key` the key of a seed's.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import functools
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import jax
@@ -28,18 +34,37 @@ from jaxrl_robot.networks import gaussian_sample
 from jaxrl_robot.types import Policy, RecurrentPolicy, as_recurrent
 
 __all__ = [
+    "EVALUATION_KINDS",
+    "EVAL_KEY_OFFSET",
     "PRECISION_THRESHOLDS",
+    "evaluate",
+    "evaluation_key",
+    "evaluation_kind",
+    "evaluation_program",
+    "final_episodes",
     "freeze",
     "precision_summary",
+    "race_evaluation",
+    "race_summary",
     "run_test_episodes",
     "sampling_policy",
+    "strict_env",
     "summarize_episodes",
+    "summarize_evaluation",
+    "tracking_episode",
     "tracking_error_sums",
+    "tracking_summary",
     "two_policies",
 ]
 
 PRECISION_THRESHOLDS = (0.05, 0.02, 0.01)
 """Goal thresholds (m) at which :func:`precision_summary` reports success."""
+
+EVAL_KEY_OFFSET = 1_000_003
+"""Folded into the seed's key for test episodes, so their starts and goals are not training's."""
+
+EVALUATION_KINDS = ("episodes", "tracking", "racing")
+"""How an env's policies are evaluated (:func:`evaluation_kind`)."""
 
 
 def sampling_policy(
@@ -219,3 +244,157 @@ def tracking_error_sums(errors: Any, axes: tuple[str, ...] = ("x", "y", "orienta
         out[f"{name}_mean"] = float(e[:, i].mean()) if len(e) else float("nan")
     out["steps"] = float(len(e))
     return out
+
+
+def evaluation_key(seed: int) -> jax.Array:
+    """The key of the final evaluation of the run of ``--seed seed`` (a stream apart from training's: ``fold_in``
+    of :data:`EVAL_KEY_OFFSET`)."""
+    return jax.random.fold_in(jax.random.PRNGKey(seed), EVAL_KEY_OFFSET)
+
+
+def evaluation_kind(env: Env) -> str:
+    """How ``env``'s policies are evaluated, as the env says (its ``evaluation_kind``: ``envs_mjx``'s tracking
+    envs ``"tracking"``, ``racecar`` ``"racing"``), else ``"episodes"``; one of :data:`EVALUATION_KINDS`.
+
+    Raises:
+      ValueError: the env names a kind that is not one of them.
+    """
+    kind = getattr(env, "evaluation_kind", "episodes")
+    if kind not in EVALUATION_KINDS:
+        raise ValueError(f"{type(env).__name__}.evaluation_kind {kind!r}; valid: {', '.join(EVALUATION_KINDS)}")
+    return kind
+
+
+def strict_env(env: Env, precision: bool) -> Env | None:
+    """With ``precision``, ``env`` (a reaching env with ``config.goal_threshold``) at the smallest of
+    ``PRECISION_THRESHOLDS`` and its own threshold (``env`` itself where that is its own), else None."""
+    own = getattr(getattr(env, "config", None), "goal_threshold", None)
+    if not precision or own is None:
+        return None
+    strict = min(PRECISION_THRESHOLDS + (own,))
+    return env if strict == own else type(env)(env.config, goal_threshold=strict)
+
+
+def final_episodes(
+    key: jax.Array, env: Env, strict: Env | None, policy: Callable, episodes: int, episode_length: int = 0
+) -> dict[str, Any]:
+    """The final evaluation's episodes in one program: ``{"episodes": …}`` of ``env`` and, with a
+    ``strict`` env (:func:`strict_env`), ``{"strict": …}``: the same starts and goals to its threshold
+    (:func:`run_test_episodes` outputs, ``[episodes]`` each; the same episodes where ``strict`` is ``env``)."""
+    limit = episode_length or None
+    out = {"episodes": run_test_episodes(key, env, policy, episodes, limit)}
+    if strict is not None:
+        out["strict"] = out["episodes"] if strict is env else run_test_episodes(key, strict, policy, episodes, limit)
+    return out
+
+
+def tracking_episode(env: Env, policy: Policy | RecurrentPolicy) -> dict[str, Any]:
+    """A tracking env's test episode from ``t = 0`` with ``policy`` (``envs_mjx.tracking.test_episode``: host
+    values, ``abs_error [N, 3]``, ``steps``, ``episode_return``, ``ref_path`` / ``real_path [N+1, 3]``,
+    ``axis_names``)."""
+    from envs_mjx import tracking
+
+    policy = as_recurrent(policy)
+    return tracking.test_episode(env, policy.step, carry=policy.carry)
+
+
+def tracking_summary(result: Mapping[str, Any], axes: tuple[str, ...]) -> dict[str, Any]:
+    """:func:`evaluate`'s summary of a tracking env's test episode: ``result`` holds host values of
+    ``envs_mjx.tracking.rollout`` (``abs_error [N, len(axes)]``, ``steps``, ``episode_return``)."""
+    steps = int(result["steps"])
+    summary = tracking_error_sums(np.asarray(result["abs_error"])[:steps], axes)
+    summary["episode_return"] = float(result["episode_return"])
+    return {"kind": "tracking", **summary}
+
+
+def race_evaluation(key: jax.Array, env: Env, policy: Callable, laps: int) -> dict[str, Any]:
+    """``laps`` one-lap test episodes on each road (thesis Tables 6.2-6.3) with the deterministic ``policy``:
+    ``<road>/<outcome>`` counts (success, collision, out_of_track, stalled), ``<road>/overtakes`` (mean),
+    ``<road>/speed_kmh``, ``<road>/rank`` and ``success_rate`` over every lap
+    (:func:`envs_mjx.racecar.make_lap_test`)."""
+    from envs_mjx.racecar import make_lap_test
+
+    test = make_lap_test(env, laps)
+    return race_summary(jax.device_get(jax.jit(lambda k: test(lambda e, s: policy(s.obs), k))(key)), laps)
+
+
+def race_summary(result: Mapping[str, Any], laps: int) -> dict[str, Any]:
+    """:func:`race_evaluation`'s summary of the host arrays of a lap test (``envs_mjx.racecar.make_lap_test``)."""
+    from envs_mjx.racecar import lap_summary
+
+    roads = lap_summary(result)
+    flat: dict[str, Any] = {"kind": "racing", "laps_per_road": laps}
+    flat["success_rate"] = sum(r["success"] for r in roads.values()) / (laps * len(roads))
+    for road, row in roads.items():
+        flat.update({f"{road}/{k}": v for k, v in row.items() if k != "laps"})
+    return flat
+
+
+def evaluation_program(
+    env: Env, policy_of: Callable[[Any], Callable], episodes: int, episode_length: int = 0, precision: bool = False
+) -> Callable[[jax.Array, Any], dict[str, Any]]:
+    """``(key, state) -> arrays`` of one evaluation of ``policy_of(state)`` on ``env``, pure (jit it), whose
+    host values :func:`summarize_evaluation` summarises as :func:`evaluate` would: :func:`final_episodes`
+    (``episodes`` test episodes, ``precision`` as :func:`strict_env`), a tracking env's test episode from
+    ``t = 0`` (``envs_mjx.tracking.rollout``; no key taken) or ``episodes`` laps on each road."""
+    kind = evaluation_kind(env)
+    if kind == "tracking":
+        from envs_mjx import tracking
+
+        def episode(k: jax.Array, s: Any) -> dict[str, jax.Array]:
+            policy = as_recurrent(policy_of(s))
+            return tracking.rollout(env, policy.step, carry=policy.carry)
+
+        return episode
+    if kind == "racing":
+        from envs_mjx.racecar import make_lap_test
+
+        test = make_lap_test(env, episodes)
+        return lambda k, s: test(lambda e, st: policy_of(s)(st.obs), k)
+    strict = strict_env(env, precision)
+
+    def evaluation(k: jax.Array, s: Any) -> dict[str, Any]:  # the name of the compiled program
+        return final_episodes(k, env, strict, policy_of(s), episodes, episode_length)
+
+    return evaluation
+
+
+def summarize_evaluation(env: Env, out: Mapping[str, Any], episodes: int) -> dict[str, Any]:
+    """:func:`evaluate`'s summary of the host values ``out`` of :func:`evaluation_program` (``episodes``: its
+    count of test episodes, racecar's laps per road)."""
+    kind = evaluation_kind(env)
+    if kind == "tracking":
+        return tracking_summary(out, tuple(env.axis_names))
+    if kind == "racing":
+        return race_summary(out, episodes)
+    summary = summarize_episodes(out["episodes"])
+    if "strict" in out:
+        summary.update(precision_summary(out["strict"], PRECISION_THRESHOLDS))
+    return {"kind": "episodes", **summary}
+
+
+def evaluate(
+    key: jax.Array, env: Env, policy: Callable, episodes: int, episode_length: int = 0, *,
+    episodes_fn: Callable[[jax.Array], dict[str, Any]] | None = None, precision: bool = False,
+) -> dict[str, Any]:  # fmt: skip
+    """The summary of a deterministic ``policy`` on ``env`` (its ``"kind"``: :func:`evaluation_kind`).
+
+    Reaching envs: ``episodes`` test episodes from fresh starts and goals of ``key`` (step limit
+    ``episode_length``, 0: the env's) → :func:`summarize_episodes`; with ``precision`` and a config with
+    ``goal_threshold`` (arm7) also :func:`precision_summary` of the same episodes on :func:`strict_env`.
+    ``episodes_fn(key)``, if given, is an already compiled :func:`final_episodes` of ``policy`` (with the same
+    ``precision``). Tracking envs: the test episode from ``t = 0`` → :func:`tracking_summary`. ``racecar``:
+    ``episodes`` laps on every road (:func:`race_evaluation`).
+    """
+    kind = evaluation_kind(env)
+    if kind == "tracking":
+        result = tracking_episode(env, policy)
+        return tracking_summary(result, tuple(result["axis_names"]))
+    if kind == "racing":
+        return race_evaluation(key, env, policy, episodes)
+    if episodes_fn is None:
+        strict = strict_env(env, precision)
+        episodes_fn = jax.jit(functools.partial(
+            final_episodes, env=env, strict=strict, policy=policy, episodes=episodes, episode_length=episode_length
+        ))  # fmt: skip
+    return summarize_evaluation(env, jax.device_get(episodes_fn(key)), episodes)

@@ -11,6 +11,8 @@ from brax.envs.base import State
 
 import envs_mjx
 from jaxrl_robot.evaluation import (
+    evaluate,
+    evaluation_kind,
     freeze,
     precision_summary,
     run_test_episodes,
@@ -18,7 +20,6 @@ from jaxrl_robot.evaluation import (
     summarize_episodes,
     two_policies,
 )
-from train.common import evaluate
 
 
 def aim_beside_the_goal(env):
@@ -102,6 +103,20 @@ def test_race_evaluation_counts_laps_per_road():
     assert out["kind"] == "racing" and out["laps_per_road"] == 2 and out["success_rate"] == 0.0
     for road in ("train", "test1", "test2", "test3"):
         assert out[f"{road}/stalled"] == 2 and out[f"{road}/success"] == 0 and out[f"{road}/collision"] == 0
+
+
+def test_the_env_says_how_its_policies_are_evaluated():
+    from envs_mjx.arm7 import Arm7
+    from envs_mjx.racecar import RaceCar
+    from envs_mjx.scara import Scara
+    from envs_mjx.unicycle import Unicycle
+
+    assert [evaluation_kind(cls) for cls in (Arm7, Scara, Unicycle, RaceCar)] == ["episodes", "tracking", "tracking",
+                                                                                  "racing"]  # fmt: skip
+    assert evaluation_kind(_FallsAfterThreeSteps()) == "episodes"  # an env that says nothing: test episodes
+    bogus = type("Bogus", (), {"evaluation_kind": "laps"})()
+    with pytest.raises(ValueError, match=r"^Bogus.evaluation_kind 'laps'; valid: episodes, tracking, racing$"):
+        evaluation_kind(bogus)
 
 
 def test_sampling_policy_draws_from_the_gaussian_per_episode_and_step_and_applies_to_env():
