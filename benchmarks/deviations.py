@@ -4,7 +4,7 @@ The thesis's setting of a row is the row's own command line with ``--preset thes
 4.2, 5.2, 5.3 and Eq. 3.21–3.23 as ``train.presets`` writes them), parsed as ``python -m train.<algo>``
 parses it (:func:`thesis_setting`), with :data:`THESIS_ENV` (the thesis's plants) and :data:`THESIS_FIXES`
 (where that preset itself keeps one of our decisions) over it. A run's setting is its ``config.json``:
-the algorithm's section, and the env's (``env.config``, written by ``train.common`` since it records it;
+the algorithm's section, and the env's (``env.config``, written by ``train.cli`` since it records it;
 for older runs the env settings are those the run's command line gives with the code at hand, which
 :func:`run_setting` says). :func:`differences` compares the two field by field; :func:`words` writes
 the list.
@@ -45,7 +45,7 @@ def family(algo: str) -> str:
 
 
 def cli_of(algo: str) -> Any:
-    """The ``train.<algo>`` command line (:class:`train.common.AlgorithmCLI`)."""
+    """The ``train.<algo>`` command line (:class:`train.cli.AlgorithmCLI`)."""
     if algo in ("a2c", "a3c"):
         return importlib.import_module("train.a2c").CLIS[algo]
     return importlib.import_module(f"train.{algo}").CLI

@@ -29,8 +29,8 @@ from benchmarks.tracking_report import GOAL, THESIS, pairs
 from envs_mjx import tracking
 from jaxrl_robot.agents.ppo import make_train, make_trainer
 from jaxrl_robot.types import as_recurrent
-from train.common import SEED_MAPS
 from train.presets import ppo_preset
+from train.seeds import SEED_MAPS
 
 METHODS = {"mlp": ("mlp", "none"), "two-stage": ("mlp", "action-search"), "lstm": ("lstm", "none")}
 """method -> (policy, pretrain)."""

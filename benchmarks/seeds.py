@@ -2,7 +2,7 @@
 
 A seed is an integer ``s``; its training key is ``jax.random.PRNGKey(s)``, exactly the key of
 ``python -m train.<algo> --seed s`` (and its evaluation key ``fold_in(PRNGKey(s), EVAL_KEY_OFFSET)``, as
-``train.common`` derives it). A benchmark's ``--purpose`` picks the range:
+``jaxrl_robot.evaluation`` derives it). A benchmark's ``--purpose`` picks the range:
 
 * ``tune`` (the default): seeds ``first, first + 1, …`` below :data:`REPORT_BASE` — sweeps, variants,
   ablations, anything a setting is chosen on;
@@ -87,11 +87,11 @@ def keys(ids: Sequence[int]) -> Any:
 
 
 def eval_keys(ids: Sequence[int]) -> Any:
-    """The evaluation keys of seeds ``ids`` (``[len(ids), 2]``), those of ``train.common``'s runs."""
+    """The evaluation keys of seeds ``ids`` (``[len(ids), 2]``), those of ``python -m train.<algo>``'s runs."""
     import jax
     import jax.numpy as jnp
 
-    from train.common import EVAL_KEY_OFFSET
+    from jaxrl_robot.evaluation import EVAL_KEY_OFFSET
 
     return jnp.stack([jax.random.fold_in(jax.random.PRNGKey(s), EVAL_KEY_OFFSET) for s in ids])
 

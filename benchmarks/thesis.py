@@ -313,7 +313,7 @@ def run_in_process(row: Row, argv: list[str], quiet: bool) -> tuple[Any, float]:
             code = main(argv)
         except SystemExit as e:  # a command line that does not parse
             code = e.code
-    from train.common import STOP_SIGNALS
+    from train.run import STOP_SIGNALS
 
     if code in [128 + s for s in STOP_SIGNALS]:  # Ctrl-C / SIGTERM: the run saved a checkpoint and stopped
         raise SystemExit(f"interrupted: {row.id} stopped with a checkpoint; the same command continues it")
@@ -380,7 +380,7 @@ def seed_folder(run: str, seeds: Sequence[int], seed: int) -> str:
 def run_seeds_together(row: Row, seeds: Sequence[int], args: argparse.Namespace) -> list[dict[str, Any]]:
     """Run (or continue, or skip) the ``seeds`` of ``row`` as one run in this process, ``--seeds N`` of the
     algorithm's command line (one program vmapped over the seeds on a GPU, the same compiled program once
-    per seed on the CPU; ``train.common.SeedProgram``); the same records as :func:`run_seed`, in the order
+    per seed on the CPU; ``train.seeds.SeedProgram``); the same records as :func:`run_seed`, in the order
     of ``seeds``, each with its ``run_dir`` the seed's folder ``<run>/seed<k>/``."""
     done, argv, out = together_start(row, seeds, args)
     if done is not None:

@@ -23,7 +23,7 @@ from benchmarks import provenance
 from benchmarks import seeds as bench_seeds
 from benchmarks.arguments import nonnegative
 from benchmarks.train_throughput import RESULTS, device_label
-from train.common import parse_value
+from train.envs import parse_value
 
 THESIS = {  # (reference, method) -> (x, y, θ or z) sums over the test episode (SPEC.md §R)
     ("scara", "ddpg"): (2.585, 4.210, 5.389),  # Table 4.3

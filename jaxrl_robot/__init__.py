@@ -30,7 +30,7 @@ __all__ = [
     "td_errors",
     # networks: the actor, critic, Gaussian-policy and observation-normaliser helpers (networks.__all__)
     *networks.__all__,
-    # shared types: a Trainer is what train/common.py drives
+    # shared types: a Trainer is what train/run.py drives
     "RecurrentPolicy",
     "RunningStats",
     "Trainer",

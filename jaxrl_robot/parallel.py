@@ -63,6 +63,7 @@ __all__ = [
     "lane_mesh",
     "lane_sharding",
     "local_lane_count",
+    "local_sharding",
     "lost_peer",
     "on_accelerator",
     "on_gpu",
@@ -93,6 +94,11 @@ def device_summary() -> list[tuple[int, str, str, int]]:
     """Every device of the run, in JAX's order, as ``(id, platform, kind, process index)``: what a compiled
     program is built for (part of the key of a program kept between processes)."""
     return [(d.id, d.platform, d.device_kind, d.process_index) for d in jax.devices()]
+
+
+def local_sharding() -> jax.sharding.SingleDeviceSharding:
+    """An array whole on this process's first device (e.g. where a checkpoint is restored to be read here)."""
+    return jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
 
 
 def lane_mesh(num_devices: int | None = None, devices: Sequence[jax.Device] | None = None) -> Mesh:

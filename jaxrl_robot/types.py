@@ -1,7 +1,7 @@
 """Shared data types: the one transition type, the trainer interface, running statistics.
 
 ``Trainer`` is the contract between an algorithm (``jaxrl_robot.agents.<algo>``) and the
-command-line driver (``train/common.py``): the algorithm supplies pure functions, the
+command-line driver (``train/run.py``): the algorithm supplies pure functions, the
 driver jits them, calls ``update`` chunk after chunk, logs, checkpoints and evaluates.
 """
 
@@ -90,7 +90,7 @@ class RunningStats:
 
 
 class Trainer(NamedTuple):
-    """The "chunked jitted update + train state + metrics" interface used by ``train/common.py``.
+    """The "chunked jitted update + train state + metrics" interface used by ``train/run.py``.
 
     All callables are pure; the caller jits them. ``state`` is any pytree of arrays (a
     ``flax.struct.dataclass``) holding *everything* a run needs to continue exactly —

@@ -1,6 +1,6 @@
 """Run directories for the tests of ``load_policy`` and ``python -m train.eval``, made cheaply.
 
-A run here is ``train.common.run`` of the algorithm's own env, trainer and ``config.json``, built from its
+A run here is ``train.run.run`` of the algorithm's own env, trainer and ``config.json``, built from its
 command line (``CLI.parse`` and ``CLI.build``, as ``python -m train.<algo>`` builds them), with one change:
 the trainer's ``update`` is :func:`shift_by`'s, which moves every floating-point leaf of the state.  So the
 run directory, its checkpoints and its final evaluation are the real ones, the state after ``n`` chunks is
@@ -17,7 +17,9 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from train import common
+from train.cli import AlgorithmCLI
+from train.options import RunSpec, settings_of
+from train.run import run
 
 
 @functools.cache
@@ -33,7 +35,7 @@ def shift_by(offset: float) -> Callable[[Any], tuple[Any, dict[str, jax.Array]]]
 
 
 def make_run(
-    out: str, cli: common.AlgorithmCLI, argv: list[str], offset: float = 0.01, **settings: Any
+    out: str, cli: AlgorithmCLI, argv: list[str], offset: float = 0.01, **settings: Any
 ) -> tuple[str, Any, Any, Any]:
     """Run ``cli``'s command line ``argv`` into ``out`` with ``shift_by(offset)`` as its update.
 
@@ -42,12 +44,12 @@ def make_run(
     """
     args = cli.parse([*argv, "--out", out])
     env, trainer, config = cli.build(args)
-    spec = common.RunSpec(
+    spec = RunSpec(
         algo=cli.name, env_name=args.env, env=env, trainer=trainer._replace(update=shift_by(offset)), config=config,
-        episode_length=int(config[cli.name]["episode_length"]), **{**common.settings_of(args), "progress": False,
+        episode_length=int(config[cli.name]["episode_length"]), **{**settings_of(args), "progress": False,
                                                                    **settings},
     )  # fmt: skip
-    return common.run(spec)["run_dir"], args, env, trainer
+    return run(spec)["run_dir"], args, env, trainer
 
 
 def state_after(trainer: Any, seed: int, chunks: int, offset: float = 0.01) -> Any:

@@ -357,7 +357,7 @@ def test_ours_evaluates_along_training_without_changing_it(every_program_cached)
         state = trainer.init(key)
         return jax.lax.scan(lambda s, _: trainer.update(s), state, None, length=trainer.num_updates)[0]
 
-    from train.common import EVAL_KEY_OFFSET
+    from jaxrl_robot.evaluation import EVAL_KEY_OFFSET
 
     state = jax.jit(whole)(jax.random.PRNGKey(0))  # seed 0: train.ppo --seed 0's keys (benchmarks.seeds)
     key = jax.random.fold_in(jax.random.PRNGKey(0), EVAL_KEY_OFFSET)

@@ -7,7 +7,7 @@ import sys
 
 from jaxrl_robot import compilation
 from tests.subproc import ROOT, cpu_env
-from train import common
+from train import cli, options
 from train import ppo as ppo_cli
 
 
@@ -87,10 +87,10 @@ def test_compile_log_counts_a_new_program_and_names_it():
 
 
 def test_no_compile_cache_is_the_off_spelling_and_the_cache_option_is_not_saved():
-    assert common.cache_flags(["--env", "arm7", "--no-compile-cache"]) == ["--env", "arm7", "--compile-cache", "off"]
+    assert cli.cache_flags(["--env", "arm7", "--no-compile-cache"]) == ["--env", "arm7", "--compile-cache", "off"]
     args = ppo_cli.CLI.parse(["--env", "brax:fast", "--no-compile-cache"])
     assert args.compile_cache == "off"
-    assert "compile_cache" in common.COMMAND_LINE_FIELDS  # a resumed run takes it from its command line
+    assert "compile_cache" in options.COMMAND_LINE_FIELDS  # a resumed run takes it from its command line
     _, _, config = ppo_cli.CLI.build(args)
     assert "compile_cache" not in config["args"]
 
@@ -185,5 +185,5 @@ def test_the_key_follows_the_project_files(tmp_path):
     before = compilation._files_digest(str(tmp_path / "pkg"))
     (tmp_path / "pkg" / "a.py").write_text("x = 2\n")
     assert compilation._files_digest(str(tmp_path / "pkg")) != before
-    assert common.program_context({"args": {"seed": 3, "out": "x", "env": "arm7"}, "ppo": {"gamma": 0.9}}) == {
+    assert cli.program_context({"args": {"seed": 3, "out": "x", "env": "arm7"}, "ppo": {"gamma": 0.9}}) == {
         "args": {"env": "arm7"}, "ppo": {"gamma": 0.9}}  # other seeds and folders share programs

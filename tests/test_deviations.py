@@ -76,7 +76,7 @@ def test_tracking_table_has_the_faithful_column_steps_per_step_errors_and_deviat
 
 def test_config_json_records_the_env_s_whole_config():
     import envs_mjx
-    from train.common import env_record
+    from train.envs import env_record
 
     got = env_record("unicycle", envs_mjx.make("unicycle", mode="kinematic", a_p=300.0))
     assert got["name"] == "unicycle" and (got["config"]["a_p"], got["config"]["mode"]) == (300.0, "kinematic")

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from benchmarks import seeds
-from train.common import EVAL_KEY_OFFSET
+from jaxrl_robot.evaluation import EVAL_KEY_OFFSET
 
 
 def test_the_ranges_never_meet():

@@ -6,7 +6,7 @@ hyper-parameter flag overrides it. ``python -m train.a2c --env arm7 --help`` lis
 with that preset's values.
 
 The run directory, progress, checkpoints, resume and evaluation (success over
-``--eval-episodes`` test episodes, mean extra distance) are ``train/common.py``'s. Besides its
+``--eval-episodes`` test episodes, mean extra distance) are ``train/run.py``'s. Besides its
 figures (episode reward, success rate, extra distance) the run draws the thesis's per-worker
 episode rewards (``worker_rewards.png``) and, for A3C, the measured gradient staleness
 (``staleness.png``).
@@ -29,7 +29,9 @@ import tyro
 from jax.sharding import Mesh
 
 from jaxrl_robot.agents.a2c import A2CConfig, A3CConfig
-from train import common
+from train.cli import AlgorithmCLI, exit_process, iterations_per_chunk
+from train.envs import env_overrides, episode_length
+from train.options import RunOptions
 from train.presets import a2c_preset, ppo_env_overrides
 
 __all__ = ["A2CArgs", "A3CArgs", "CLIS", "build", "draw_figures", "main", "parse"]
@@ -38,7 +40,7 @@ ALGOS = ("a2c", "a3c")
 
 
 @dataclass
-class A2CArgs(common.RunOptions):
+class A2CArgs(RunOptions):
     """Synchronous advantage actor-critic (thesis §4.1.2) on an MJX robot environment."""
 
     a2c: Annotated[A2CConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=A2CConfig)
@@ -46,7 +48,7 @@ class A2CArgs(common.RunOptions):
 
 
 @dataclass
-class A3CArgs(common.RunOptions):
+class A3CArgs(RunOptions):
     """Asynchronous advantage actor-critic (thesis §4.1.1), reproduced deterministically, on an MJX env."""
 
     a3c: Annotated[A3CConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=A3CConfig)
@@ -55,14 +57,14 @@ class A3CArgs(common.RunOptions):
 
 def env_settings(args: A2CArgs | A3CArgs) -> dict[str, Any]:
     """The preset's env options (as PPO's), then ``--reward`` and ``--env-config``."""
-    return {**ppo_env_overrides(args.preset, args.env), **common.env_overrides(args)}
+    return {**ppo_env_overrides(args.preset, args.env), **env_overrides(args)}
 
 
 def make_trainer(args: A2CArgs | A3CArgs, env: Any, cfg: A2CConfig, mesh: Mesh):
     """The A2C / A3C trainer: ``--chunks`` chunks of whole rounds over the lane mesh."""
     from jaxrl_robot.agents.a2c import make_trainer as make_a2c_trainer
 
-    per_chunk = common.iterations_per_chunk(-(-cfg.total_steps // (cfg.num_envs * cfg.unroll_length)), args.chunks)
+    per_chunk = iterations_per_chunk(cfg.total_iterations, args.chunks)
     return make_a2c_trainer(cfg, env, mesh=mesh, iterations_per_update=per_chunk), per_chunk
 
 
@@ -75,12 +77,12 @@ def draw_figures(run_dir: str) -> list[str]:
     return plot_worker_curves(rows, run_dir) + plot_staleness(rows, run_dir)
 
 
-def _cli(algo: str, args_type: type, config_type: type) -> common.AlgorithmCLI:
+def _cli(algo: str, args_type: type, config_type: type) -> AlgorithmCLI:
     def preset(args: Any, env: Any) -> A2CConfig:
-        episode_length, action_size = common.episode_length(env), int(env.action_size)
-        return a2c_preset(args.preset, args.env, episode_length, action_size, asynchronous=algo == "a3c")[0]
+        length, action_size = episode_length(env), int(env.action_size)
+        return a2c_preset(args.preset, args.env, length, action_size, asynchronous=algo == "a3c")[0]
 
-    return common.AlgorithmCLI(
+    return AlgorithmCLI(
         name=algo, args_type=args_type, config_type=config_type, preset=preset, make_trainer=make_trainer,
         env_settings=env_settings, after=lambda result: draw_figures(result["run_dir"]),
     )  # fmt: skip
@@ -89,7 +91,7 @@ def _cli(algo: str, args_type: type, config_type: type) -> common.AlgorithmCLI:
 CLIS = {"a2c": _cli("a2c", A2CArgs, A2CConfig), "a3c": _cli("a3c", A3CArgs, A3CConfig)}
 
 
-def _check_algo(algo: str) -> common.AlgorithmCLI:
+def _check_algo(algo: str) -> AlgorithmCLI:
     if algo not in CLIS:
         raise ValueError(f"unknown algorithm {algo!r}; valid: {', '.join(ALGOS)}")
     return CLIS[algo]
@@ -111,4 +113,4 @@ def main(argv: list[str] | None = None, algo: str = "a2c") -> int:
 
 
 if __name__ == "__main__":
-    common.exit_process(main())
+    exit_process(main())

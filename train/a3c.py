@@ -19,6 +19,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    from train import common
+    from train.cli import exit_process
 
-    common.exit_process(main())
+    exit_process(main())

@@ -31,7 +31,7 @@ workers fetching the parameters every 5 steps, a shared memory of 200 000), whic
     python -m train.ddpg --env scara --preset thesis --distributed
     python -m train.ddpg --env unicycle --trajectory sine --distributed --sync-workers 8
 
-The run options are ``train.common.RunOptions``; ``--trajectory`` and the default of ``--chunks``
+The run options are ``train.options.RunOptions``; ``--trajectory`` and the default of ``--chunks``
 are DDPG's own. A run writes ``runs/ddpg-<env>-<time>/`` (config, metrics.csv, TensorBoard, checkpoints with
 the replay memory and sum-tree, so ``--resume`` continues exactly; figures; ``eval.json``).
 """
@@ -51,14 +51,16 @@ from jaxrl_robot.agents.ddpg import DDPGConfig
 from jaxrl_robot.agents.ddpg import make_trainer as make_ddpg_trainer
 from jaxrl_robot.agents.off_policy import OffPolicyConfig
 from jaxrl_robot.types import Trainer
-from train import common
+from train.cli import AlgorithmCLI, exit_process, iterations_per_chunk
+from train.envs import BuiltEnv, env_overrides, episode_length
+from train.options import RunOptions
 from train.presets import ddpg_env_overrides, ddpg_preset
 
 __all__ = ["CLI", "Args", "OffPolicyCLI", "OffPolicyOptions", "build", "chunked", "distributed_flag", "main", "parse"]
 
 
 @dataclass
-class OffPolicyOptions(common.RunOptions):
+class OffPolicyOptions(RunOptions):
     """The run options of the off-policy command lines (``train.ddpg``, ``train.td3``, ``train.sac``)."""
 
     chunks: int = 0
@@ -66,7 +68,7 @@ class OffPolicyOptions(common.RunOptions):
     trajectory: str | None = None
     """Reference trajectory of a tracking env (unicycle: sine, ellipse); None keeps the env's default."""
 
-    ranges: ClassVar[dict[str, tuple[int, int | None]]] = {**common.RunOptions.ranges, "chunks": (0, None)}
+    ranges: ClassVar[dict[str, tuple[int, int | None]]] = {**RunOptions.ranges, "chunks": (0, None)}
 
 
 @dataclass
@@ -84,7 +86,7 @@ class Args(OffPolicyOptions):
 def env_settings(args: OffPolicyOptions) -> dict[str, Any]:
     """Env settings: the preset's (:func:`train.presets.ddpg_env_overrides`), then ``--reward``,
     ``--trajectory`` and ``--env-config KEY=VALUE``."""
-    user = {**({} if args.trajectory is None else {"trajectory": args.trajectory}), **common.env_overrides(args)}
+    user = {**({} if args.trajectory is None else {"trajectory": args.trajectory}), **env_overrides(args)}
     return {**ddpg_env_overrides(args.preset, args.env, method_of(args), user.get("trajectory")), **user}
 
 
@@ -108,7 +110,7 @@ def preset(args: OffPolicyOptions, env: Any, distributed: bool = False) -> DDPGC
     its distributed variant with ``distributed``."""
     reward = args.reward or getattr(getattr(env, "config", None), "reward", None)
     her = getattr(algo_config(args), "her", "none")
-    return ddpg_preset(args.preset, args.env, common.episode_length(env), reward, distributed=distributed, her=her)
+    return ddpg_preset(args.preset, args.env, episode_length(env), reward, distributed=distributed, her=her)
 
 
 def distributed_flag(argv: list[str]) -> bool:
@@ -118,15 +120,15 @@ def distributed_flag(argv: list[str]) -> bool:
 
 
 @dataclass(frozen=True)
-class OffPolicyCLI(common.AlgorithmCLI):
-    """An :class:`~train.common.AlgorithmCLI` whose preset also depends on ``--distributed``
+class OffPolicyCLI(AlgorithmCLI):
+    """An :class:`~train.cli.AlgorithmCLI` whose preset also depends on ``--distributed``
     (read ahead of the full parse, like ``--env``); ``preset`` takes ``distributed=``."""
 
-    def parse(self, argv: list[str] | None = None) -> Any:
+    def parse_with_env(self, argv: list[str] | None = None) -> tuple[Any, BuiltEnv | None]:
         argv = sys.argv[1:] if argv is None else list(argv)
         flag = distributed_flag(argv)
         ahead = dataclasses.replace(self, preset=lambda args, env: self.preset(args, env, distributed=flag))
-        return common.AlgorithmCLI.parse(ahead, argv)
+        return AlgorithmCLI.parse_with_env(ahead, argv)
 
 
 def chunked(make_algo_trainer: Callable[..., Trainer]) -> Callable[..., tuple[Trainer, int]]:
@@ -136,11 +138,11 @@ def chunked(make_algo_trainer: Callable[..., Trainer]) -> Callable[..., tuple[Tr
 
     def make_trainer(args: OffPolicyOptions, env: Any, cfg: OffPolicyConfig, mesh: Mesh) -> tuple[Trainer, int]:
         if args.chunks > 0:
-            per_chunk = common.iterations_per_chunk(cfg.iterations, args.chunks)
+            per_chunk = iterations_per_chunk(cfg.iterations, args.chunks)
         elif cfg.schedule == "episodes":
             per_chunk = cfg.cycles_per_epoch
         else:
-            per_chunk = common.iterations_per_chunk(cfg.iterations, 50)
+            per_chunk = iterations_per_chunk(cfg.iterations, 50)
         return make_algo_trainer(cfg, env, mesh=mesh, iterations_per_update=per_chunk), per_chunk
 
     return make_trainer
@@ -178,4 +180,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    common.exit_process(main())
+    exit_process(main())

@@ -56,7 +56,7 @@ def _count(low: int, high: int | None = None) -> Any:
 
 def parser() -> argparse.ArgumentParser:
     """The command line of ``python -m train.eval``."""
-    from train.common import MAX_SEED
+    from train.options import MAX_SEED
 
     p = _Parser(prog="python -m train.eval", description=__doc__.splitlines()[0],
                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)  # fmt: skip
@@ -110,7 +110,15 @@ def _evaluate(args: argparse.Namespace) -> int:
 
     from jaxrl_robot import runs, video
     from jaxrl_robot.compilation import enable_persistent_cache, resolve_cache_dir
-    from train import common
+    from jaxrl_robot.evaluation import evaluation_key
+    from train.evaluations import (
+        compile_evaluation_async,
+        compiled_program,
+        evaluate_state,
+        evaluation_title,
+        print_table,
+    )
+    from train.options import RunSpec
 
     size = _size(args.video_size) if args.video else None
     if args.video:
@@ -125,7 +133,7 @@ def _evaluate(args: argparse.Namespace) -> int:
         video.check_rendering(run.env)
     algo, options = run.config["algo"], run.config.get("args", {})
     several = len(runs.run_seeds(run.config)) > 1
-    spec = common.RunSpec(
+    spec = RunSpec(
         algo=algo, env_name=str(options.get("env")), env=run.env, trainer=run.trainer, config=run.config,
         run_dir=run.run_dir, episode_length=int(run.config[algo]["episode_length"]),
         eval_episodes=args.episodes or int(options.get("eval_episodes", 100)),
@@ -135,13 +143,13 @@ def _evaluate(args: argparse.Namespace) -> int:
     results = []
     for k, state in run.states.items():
         eval_seed = k if args.seed is None else args.seed
-        key = common.evaluation_key(eval_seed)
+        key = evaluation_key(eval_seed)
         t0 = time.perf_counter()
-        compiled = common._compiled_episodes(common.compile_evaluation_async(spec, key, state))
-        summary = common.evaluate_state(spec, key, state, None, compiled)
+        compiled = compiled_program(compile_evaluation_async(spec, key, state))
+        summary = evaluate_state(spec, key, state, None, compiled)
         eval_s = time.perf_counter() - t0
         rows = {**summary, "env_steps": run.env_steps, "checkpoint": run.step, "eval_s": round(eval_s, 2)}
-        common._print_table(common.evaluation_title(algo, spec.env_name, k if several else None), rows)
+        print_table(evaluation_title(algo, spec.env_name, k if several else None), rows)
         results.append({**summary, "seed": k, "eval_seed": eval_seed, "checkpoint": run.step,
                         "env_steps": run.env_steps, "run_dir": run.run_dir, "eval_s": eval_s})  # fmt: skip
     if args.out:
@@ -151,7 +159,7 @@ def _evaluate(args: argparse.Namespace) -> int:
         k, state = next(iter(run.states.items()))
         eval_seed = k if args.seed is None else args.seed
         episodes = max(spec.eval_episodes, args.video_episodes)  # the evaluation's first episodes: its keys
-        keys = jax.random.split(common.evaluation_key(eval_seed), episodes)[: args.video_episodes]
+        keys = jax.random.split(evaluation_key(eval_seed), episodes)[: args.video_episodes]
         frames = video.episode_video(args.video, run.env, run.trainer.policy(state), keys, *size,
                                      stride=args.video_stride, episode_length=spec.episode_length)  # fmt: skip
         print(f"wrote {args.video} ({frames} frames" + (f", seed {k}" if several else "") + ")")
@@ -176,15 +184,15 @@ def _make_folder(option: str, path: str | None) -> None:
 
 
 def _write_json(path: str, obj: Any) -> None:
-    """``obj`` as JSON (``train.common``'s: non-finite floats as null).
+    """``obj`` as JSON (``train.rundir.write_json``: non-finite floats as null).
 
     Raises:
       ValueError: the file cannot be written (one line naming it).
     """
-    from train import common
+    from train.rundir import write_json
 
     try:
-        common._write_json(path, obj)
+        write_json(path, obj)
     except OSError as e:
         raise ValueError(f"--out {path!r}: cannot write it ({e.strerror or e})") from None
 

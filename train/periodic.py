@@ -48,7 +48,7 @@ def eval_chunks(evals: int, chunks: int) -> tuple[int, ...]:
 
 def key_at(eval_key: jax.Array, chunk: int, last_chunk: int) -> jax.Array:
     """The key of the evaluation after ``chunk`` of a run of ``last_chunk`` chunks whose final evaluation
-    uses ``eval_key`` (``train.common.evaluation_key(seed)``): ``fold_in(eval_key, chunk)`` before the last
+    uses ``eval_key`` (``jaxrl_robot.evaluation.evaluation_key(seed)``): ``fold_in(eval_key, chunk)`` before the last
     chunk, ``eval_key`` itself at it (that evaluation is the final one)."""
     return eval_key if chunk == last_chunk else jax.random.fold_in(eval_key, chunk)
 

@@ -15,7 +15,7 @@ Examples::
     python -m train.ppo --resume runs/ppo-arm7-20260101-120000
 
 The run options (``--env``, ``--seed``, ``--out``, ``--resume``, ``--chunks``, the process
-options of a run over several hosts, …) are ``train.common.RunOptions``.
+options of a run over several hosts, …) are ``train.options.RunOptions``.
 """
 
 from __future__ import annotations
@@ -27,14 +27,16 @@ import tyro
 from jax.sharding import Mesh
 
 from jaxrl_robot.agents.ppo import PPOConfig
-from train import common
+from train.cli import AlgorithmCLI, exit_process, iterations_per_chunk
+from train.envs import env_overrides, episode_length
+from train.options import RunOptions
 from train.presets import ppo_env_overrides, ppo_preset
 
 __all__ = ["CLI", "Args", "build", "main", "parse"]
 
 
 @dataclass
-class Args(common.RunOptions):
+class Args(RunOptions):
     """Distributed PPO with GAE (thesis ch. 5) on an MJX robot environment."""
 
     ppo: Annotated[PPOConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=PPOConfig)
@@ -43,7 +45,7 @@ class Args(common.RunOptions):
 
 def env_settings(args: Args) -> dict[str, Any]:
     """The preset's env options, then ``--reward`` and ``--env-config``."""
-    user = common.env_overrides(args)
+    user = env_overrides(args)
     preset = ppo_env_overrides(args.preset, args.env, args.ppo.pretrain, args.ppo.policy, user.get("trajectory"))
     return {**preset, **user}
 
@@ -51,18 +53,18 @@ def env_settings(args: Args) -> dict[str, Any]:
 def preset(args: Args, env: Any) -> PPOConfig:
     """The :class:`PPOConfig` of ``args.preset`` for ``env`` and the ``--policy`` / ``--pretrain`` chosen."""
     variant = {"policy": args.ppo.policy, "pretrain": args.ppo.pretrain, "devices": args.devices}
-    return ppo_preset(args.preset, args.env, common.episode_length(env), int(env.action_size), **variant)[0]
+    return ppo_preset(args.preset, args.env, episode_length(env), int(env.action_size), **variant)[0]
 
 
 def make_trainer(args: Args, env: Any, cfg: PPOConfig, mesh: Mesh):
     """The PPO trainer: ``--chunks`` chunks of whole iterations over the lane mesh."""
     from jaxrl_robot.agents.ppo import make_trainer as make_ppo_trainer
 
-    per_chunk = common.iterations_per_chunk(-(-cfg.total_steps // (cfg.num_envs * cfg.unroll_length)), args.chunks)
+    per_chunk = iterations_per_chunk(cfg.total_iterations, args.chunks)
     return make_ppo_trainer(cfg, env, mesh=mesh, iterations_per_update=per_chunk), per_chunk
 
 
-CLI = common.AlgorithmCLI(
+CLI = AlgorithmCLI(
     name="ppo", args_type=Args, config_type=PPOConfig, preset=preset, make_trainer=make_trainer,
     env_settings=env_settings, preset_fields=("policy", "pretrain"),
 )  # fmt: skip
@@ -73,4 +75,4 @@ CLI = common.AlgorithmCLI(
 parse, build, main = CLI.parse, CLI.build, CLI.main
 
 if __name__ == "__main__":
-    common.exit_process(main())
+    exit_process(main())

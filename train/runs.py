@@ -5,8 +5,8 @@
 ``python -m train.eval`` calls it through ``jaxrl_robot.runs.load_run``.
 
 The env, the trainer and the state's structure come from ``config.json`` by the path ``--resume`` takes
-(:meth:`~train.common.AlgorithmCLI.args_from_saved`, :meth:`~train.common.AlgorithmCLI.build`,
-:class:`~train.common.SeedProgram`), on one device of this machine whatever ``--devices`` the run used; the
+(:meth:`~train.cli.AlgorithmCLI.args_from_saved`, :meth:`~train.cli.AlgorithmCLI.build`,
+:class:`~train.seeds.SeedProgram`), on one device of this machine whatever ``--devices`` the run used; the
 state's structure is traced (``jax.eval_shape``), not computed.  The checkpoint is restored by
 :class:`~jaxrl_robot.checkpoint.Checkpointer`: its checksums verified, falling back to the newest good one;
 nothing in the run directory is written or moved.
@@ -23,9 +23,12 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
+from jaxrl_robot import parallel
 from jaxrl_robot.checkpoint import Checkpointer, CheckpointMismatchError, Restored
 from jaxrl_robot.runs import LoadedRun, RunLoadError, run_seeds
-from train import common
+from train.cli import AlgorithmCLI
+from train.rundir import mismatch_error
+from train.seeds import SeedProgram, resolve_seed_map
 
 __all__ = ["ALGOS", "cli_of", "load_run", "rebuild"]
 
@@ -33,8 +36,8 @@ ALGOS = ("ppo", "a2c", "a3c", "ddpg", "td3", "sac")
 """The algorithms whose runs :func:`load_run` rebuilds."""
 
 
-def cli_of(algo: str) -> common.AlgorithmCLI:
-    """The :class:`~train.common.AlgorithmCLI` of ``algo`` (imported on demand).
+def cli_of(algo: str) -> AlgorithmCLI:
+    """The :class:`~train.cli.AlgorithmCLI` of ``algo`` (imported on demand).
 
     Raises:
       RunLoadError: ``algo`` is not one of :data:`ALGOS`.
@@ -77,7 +80,7 @@ def rebuild(run_dir: str, config: dict[str, Any]) -> tuple[Any, Any, Any, dict[s
 def _abstract(tree: Any) -> Any:
     """A restore target of ``jax.eval_shape``'s output: shapes and dtypes on this process's first device
     (zero-size leaves as arrays: checkpoints do not store them)."""
-    device = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
+    device = parallel.local_sharding()
 
     def leaf(x: jax.ShapeDtypeStruct) -> Any:
         if math.prod(x.shape) == 0:
@@ -120,12 +123,12 @@ def load_run(
         raise RunLoadError(f"{run_dir}: no checkpoint {step}; saved: {', '.join(map(str, steps))}")
     # the seeds' states are one stacked state (vmap) or a tuple (loop): the mapping of the machine that
     # trained them, which 'auto' resolved there; the other one is tried if this machine resolves it otherwise
-    first = common.resolve_seed_map(args.seed_map)
+    first = resolve_seed_map(args.seed_map)
     mappings = [first] if len(trained) == 1 else [first, "loop" if first == "vmap" else "vmap"]
     mismatches: list[CheckpointMismatchError] = []
     try:
         for mapping in mappings:
-            program = common.SeedProgram.of(trainer, len(trained), mapping)
+            program = SeedProgram.of(trainer, len(trained), mapping)
             target = _abstract(jax.eval_shape(lambda p=program: p.init(trained)))
             try:
                 restored = _restore(ckpt, step, target)
@@ -133,7 +136,7 @@ def load_run(
             except CheckpointMismatchError as e:
                 mismatches.append(e)
         else:  # told as this machine's mapping sees it
-            raise common.mismatch_error(ckpt, mismatches[0], run_dir, config) from None
+            raise mismatch_error(ckpt, mismatches[0], run_dir, config) from None
     finally:
         ckpt.close()
     states = {k: program.view(restored.state, trained.index(k)) for k in seeds}

@@ -60,4 +60,4 @@ CLI = ddpg.OffPolicyCLI(
 parse, build, main = CLI.parse, CLI.build, CLI.main
 
 if __name__ == "__main__":
-    ddpg.common.exit_process(main())
+    ddpg.exit_process(main())

@@ -21,10 +21,9 @@ from jaxrl_robot.agents.ppo import PPOConfig, make_trainer
 from jaxrl_robot.agents.ppo.nets import make_ppo_nets
 from jaxrl_robot.agents.ppo.pretrain import action_search, imitation_loss
 from jaxrl_robot.checkpoint import Checkpointer
-from jaxrl_robot.evaluation import run_test_episodes
+from jaxrl_robot.evaluation import evaluate, run_test_episodes
 from jaxrl_robot.recurrent import table_lookup, table_update, unroll
 from jaxrl_robot.types import RecurrentPolicy
-from train.common import evaluate
 from train.presets import ppo_env_overrides, ppo_preset
 
 

@@ -1,10 +1,10 @@
 """Every ``python -m train.<algo>`` and the benchmarks check their counts as they parse, and a run over
 two processes whose peer dies ends its survivor with one line.
 
-Bad flags fail before any env is built (``common.make_env`` is replaced by a function that fails the
+Bad flags fail before any env is built (``train.cli.make_env`` is replaced by a function that fails the
 test), with one line on stderr naming the flag and the allowed range, exit code 2 and no run
 directory. The peer test runs a stand-in algorithm (one all-reduce over the lanes of both processes
-per chunk) through the real command-line machinery (:func:`train.common.cli_main`) in two processes
+per chunk) through the real command-line machinery (:func:`train.cli.cli_main`) in two processes
 and kills process 1 after its first chunk.
 """
 
@@ -32,7 +32,11 @@ from jaxrl_robot import parallel
 from jaxrl_robot.types import Trainer
 from tests.cli.test_multihost import _free_port
 from tests.subproc import ROOT, cpu_env
-from train import a2c, a3c, common, ddpg, ppo, td3
+from train import a2c, a3c, cli, ddpg, ppo, td3
+from train.cli import AlgorithmCLI, iterations_per_chunk
+from train.envs import BuiltEnv, check_backend_devices
+from train.options import RunOptions, RunSpec
+from train.run import PeerLostError, run
 
 CLIS = {"ppo": ppo.main, "a2c": a2c.main, "a3c": a3c.main, "ddpg": ddpg.main, "td3": td3.main}
 ON_POLICY = ("ppo", "a2c", "a3c")
@@ -56,12 +60,12 @@ CASES += [(algo, "--chunks", "-1", ">= 0") for algo in ("ddpg", "td3")]
 
 @pytest.fixture
 def no_env(monkeypatch):
-    """``common.make_env`` that fails the test: nothing may be built for a command line with a bad count."""
+    """``train.cli.make_env`` that fails the test: nothing may be built for a command line with a bad count."""
 
     def fail(name, overrides):
         raise AssertionError(f"an env ({name}) was built before the bad flag was reported")
 
-    monkeypatch.setattr(common, "make_env", fail)
+    monkeypatch.setattr(cli, "make_env", fail)
 
 
 def one_line(capsys) -> str:
@@ -101,11 +105,11 @@ def test_too_many_devices_names_the_flag_and_the_device_count(tmp_path, capsys):
 
 
 def test_warp_physics_over_several_devices_is_one_line_naming_devices():
-    common.check_backend_devices({"impl": "warp"}, 1)
-    common.check_backend_devices({"impl": "jax", "mode": "pd"}, 4)
+    check_backend_devices({"impl": "warp"}, 1)
+    check_backend_devices({"impl": "jax", "mode": "pd"}, 4)
     with pytest.raises(ValueError, match=r"^--env-config impl=warp runs its lanes on one device; add --devices 1 "
                                          r"\(the lanes would be spread over 2\)$"):  # fmt: skip
-        common.check_backend_devices({"impl": "warp", "mode": "pd"}, 2)
+        check_backend_devices({"impl": "warp", "mode": "pd"}, 2)
 
 
 @pytest.mark.parametrize(
@@ -121,8 +125,8 @@ def test_warp_physics_over_several_devices_is_one_line_naming_devices():
 def test_a_bad_hyper_parameter_names_its_flag_before_the_run_env_is_built(algo, argv, message, tmp_path, capsys,
                                                                           monkeypatch):  # fmt: skip
     built = []
-    make_env = common.make_env
-    monkeypatch.setattr(common, "make_env", lambda name, overrides: built.append(name) or make_env(name, overrides))
+    make_env = cli.make_env
+    monkeypatch.setattr(cli, "make_env", lambda name, overrides: built.append(name) or make_env(name, overrides))
     out = tmp_path / "runs"
     assert CLIS[algo](["--env", "brax:fast", "--out", str(out), *argv]) == 2
     assert one_line(capsys) == f"error: {message}"
@@ -143,14 +147,14 @@ def test_a_resumed_config_with_a_bad_count_names_the_file(tmp_path, capsys, no_e
 def test_run_checks_a_spec_made_by_hand(tmp_path):
     trainer = Trainer(init=lambda key: {}, update=lambda s: (s, {}), policy=lambda s: None, num_updates=1,
                       env_steps_per_update=1)  # fmt: skip
-    spec = common.RunSpec(algo="fake", env_name="none", env=None, trainer=trainer, config={}, out=str(tmp_path / "r"),
+    spec = RunSpec(algo="fake", env_name="none", env=None, trainer=trainer, config={}, out=str(tmp_path / "r"),
                           checkpoint_every=0)  # fmt: skip
     with pytest.raises(ValueError, match=r"^--checkpoint-every 0 is out of range; allowed >= 1$"):
-        common.run(spec)
+        run(spec)
     assert not (tmp_path / "r").exists()
     with pytest.raises(ValueError, match=r"^--chunks 0 is out of range; allowed >= 1$"):
-        common.iterations_per_chunk(10, 0)
-    assert common.iterations_per_chunk(10, 3) == 4 and common.iterations_per_chunk(2, 5) == 1
+        iterations_per_chunk(10, 0)
+    assert iterations_per_chunk(10, 3) == 4 and iterations_per_chunk(2, 5) == 1
 
 
 @pytest.mark.parametrize(
@@ -193,7 +197,7 @@ class ToyConfig:
 
 
 @dataclasses.dataclass
-class ToyArgs(common.RunOptions):
+class ToyArgs(RunOptions):
     """A stand-in algorithm."""
 
     toy: Annotated[ToyConfig, tyro.conf.OmitArgPrefixes] = dataclasses.field(default_factory=ToyConfig)
@@ -215,24 +219,44 @@ def toy_trainer(args, env, cfg, mesh):
     return Trainer(init=init, update=update, policy=policy, num_updates=args.chunks, env_steps_per_update=cfg.lanes), 1
 
 
-TOY = common.AlgorithmCLI(name="toy", args_type=ToyArgs, config_type=ToyConfig, preset=lambda args, env: ToyConfig(),
-                          make_trainer=toy_trainer)  # fmt: skip
+TOY = AlgorithmCLI(name="toy", args_type=ToyArgs, config_type=ToyConfig, preset=lambda args, env: ToyConfig(),
+                   make_trainer=toy_trainer)  # fmt: skip
+
+
+def test_the_command_line_builds_its_env_once_and_again_only_for_other_settings(monkeypatch):
+    """``parse`` builds the env it reads the preset's defaults from and ``build`` takes it; where the run's env
+    settings differ from those (here: a field of the config the preset chose), ``build`` makes the run's own."""
+    built = []
+    make_env = cli.make_env
+    monkeypatch.setattr(cli, "make_env", lambda name, changes: built.append(dict(changes)) or make_env(name, changes))
+    args, first = ppo.CLI.parse_with_env(["--env", "brax:fast"])
+    env, _, _ = ppo.CLI.build(args, first)
+    assert len(built) == 1 and env is first.env
+    varying = dataclasses.replace(TOY, preset=lambda args, env: ToyConfig(lanes=8),
+                                  env_settings=lambda args: {"lanes": args.toy.lanes})  # fmt: skip
+    built.clear()
+    args, first = varying.parse_with_env(["--env", "brax:fast"])
+    env, _, _ = varying.build(args, first)
+    assert built == [{"lanes": 4}, {"lanes": 8}] and env is not first.env
+    assert BuiltEnv("brax:fast", {"x": 1, "y": "a"}, None).fits("brax:fast", {"y": "a", "x": 1})
+    assert not BuiltEnv("brax:fast", {"x": 1}, None).fits("brax:fast", {"x": True})  # 1 is not True
+    assert not BuiltEnv("brax:fast", {}, None).fits("brax:hopper", {})
 
 # Process 1 says when its first chunk is saved, then waits to be killed.
 TOY_MAIN = textwrap.dedent(
     """
     import sys, time
     from tests.cli.test_arguments import TOY
-    from train import common
+    from train import run
 
-    class SaysWhenSaved(common.Checkpointer):
+    class SaysWhenSaved(run.Checkpointer):
         def save(self, step, *args, **kwargs):
             super().save(step, *args, **kwargs)
             if step == 1 and sys.argv[-1] == "1":
                 print("chunk 1 saved", flush=True)
                 time.sleep(600)
 
-    common.Checkpointer = SaysWhenSaved
+    run.Checkpointer = SaysWhenSaved
     sys.exit(TOY.main(sys.argv[1:]))
     """
 )
@@ -260,7 +284,7 @@ def test_a_collective_that_lost_its_peer_is_told_from_other_errors(monkeypatch):
 @pytest.mark.parametrize(
     ("raised", "line"),
     [
-        (common.PeerLostError("process 1 of 2 stopped responding (x); the run can be resumed with --resume D"),
+        (PeerLostError("process 1 of 2 stopped responding (x); the run can be resumed with --resume D"),
          "error: process 1 of 2 stopped responding (x); the run can be resumed with --resume D"),
         (jax.errors.JaxRuntimeError(GLOO_ERROR),
          "error: process 1 of 2 stopped responding (Gloo AllGather failed: Connection closed by peer) as the run "
@@ -275,7 +299,7 @@ def test_the_command_line_ends_at_once_on_a_lost_peer(raised, line, monkeypatch,
     def exit_at_once(code, message=""):
         raise SystemExit((code, message))
 
-    monkeypatch.setattr(common, "run", run)
+    monkeypatch.setattr(cli, "run", run)
     monkeypatch.setattr(parallel, "exit_at_once", exit_at_once)
     with pytest.raises(SystemExit) as ended:
         TOY.main(["--env", "brax:fast", "--out", str(tmp_path)])

@@ -2,7 +2,7 @@
 writer, an edited ``config.json`` and a full disk. Each is one line on stderr with its exit code, and nothing
 good is lost.
 
-The command is :func:`train.common.cli_main` of a stand-in algorithm (``count``: a trainer of a few jitted
+The command is :func:`train.cli.cli_main` of a stand-in algorithm (``count``: a trainer of a few jitted
 array operations, its state shaped by ``num_envs``) in this process: the parsing, ``config.json``, run
 directory, checkpoints and resume are those of every algorithm, without compiling one (a tiny PPO run
 compiles for half a minute on two cores). One run is made per module and copied for each test.
@@ -27,7 +27,8 @@ import tyro
 from jaxrl_robot.checkpoint import CHECKSUMS, Checkpointer, DirectoryLock
 from jaxrl_robot.types import Trainer
 from tests.test_checkpoint import array_file, flip_bytes, truncate
-from train import common
+from train.cli import AlgorithmCLI, cli_main
+from train.options import RunOptions
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,7 +49,7 @@ class CountConfig:
 
 
 @dataclasses.dataclass
-class CountArgs(common.RunOptions):
+class CountArgs(RunOptions):
     count: Annotated[CountConfig, tyro.conf.OmitArgPrefixes] = dataclasses.field(default_factory=CountConfig)
 
 
@@ -73,12 +74,12 @@ def make_count_trainer(args, env, cfg, mesh):
     return trainer, 1
 
 
-COUNT = common.AlgorithmCLI(name="count", args_type=CountArgs, config_type=CountConfig,
-                            preset=lambda args, env: CountConfig(), make_trainer=make_count_trainer)  # fmt: skip
+COUNT = AlgorithmCLI(name="count", args_type=CountArgs, config_type=CountConfig,
+                     preset=lambda args, env: CountConfig(), make_trainer=make_count_trainer)  # fmt: skip
 
 
 def main(argv):
-    return common.cli_main(COUNT, argv)
+    return cli_main(COUNT, argv)
 
 
 @pytest.fixture(scope="module")

@@ -12,9 +12,8 @@ import pytest
 from PIL import Image, ImageSequence
 
 from jaxrl_robot import video
-from jaxrl_robot.evaluation import run_test_episodes, summarize_episodes
+from jaxrl_robot.evaluation import evaluation_key, run_test_episodes, summarize_episodes
 from tests.run_dirs import make_run, state_after
-from train import common
 from train import eval as eval_cli
 from train import ppo as ppo_cli
 
@@ -63,7 +62,7 @@ def test_eval_seed_gives_the_episodes_a_run_of_that_seed_tests(finished, tmp_pat
     assert eval_cli.main([run_dir, "--seed", "11", "--out", str(out)]) == 0
     got = json.loads(out.read_text())
     policy = trainer.policy(state_after(trainer, 5, 2, OFFSET))
-    episodes = jax.jit(lambda k: run_test_episodes(k, env, policy, 4, 4))(common.evaluation_key(11))
+    episodes = jax.jit(lambda k: run_test_episodes(k, env, policy, 4, 4))(evaluation_key(11))
     want = summarize_episodes(episodes)
     assert got["episodes"] == 4 and got["eval_seed"] == 11 and got["seed"] == 5
     np.testing.assert_allclose([got[k] for k in FIGURES], [want[k] for k in FIGURES], rtol=1e-5)

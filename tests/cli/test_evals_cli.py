@@ -2,7 +2,7 @@
 :mod:`train.periodic` names with the keys it derives; their time kept off the training clock; a resumed run
 repeats no row; tracking envs compile their program once.
 
-The runs are ``train.common.run`` of the CLI's own env, trainer and config with ``tests.run_dirs.shift_by``
+The runs are ``train.run.run`` of the CLI's own env, trainer and config with ``tests.run_dirs.shift_by``
 as the update (no learning step compiled): the state after ``c`` chunks is known without a checkpoint
 (:func:`tests.run_dirs.state_after`), an oracle for each row.
 """
@@ -18,11 +18,16 @@ import pytest
 
 from envs_mjx import tracking
 from jaxrl_robot.checkpoint import Checkpointer
+from jaxrl_robot.evaluation import evaluation_key
 from jaxrl_robot.types import as_recurrent
 from tests.run_dirs import shift_by, state_after
 from tests.subproc import cache_every_program
-from train import common, periodic
+from train import evaluations, periodic
 from train import ppo as ppo_cli
+from train import run as run_module
+from train.envs import make_env
+from train.evaluations import compile_evaluation_async, compiled_program
+from train.options import RunSpec, settings_of
 
 RUN = ["--env", "arm7", "--episode-length", "4", "--total-steps", "256", "--chunks", "4", "--eval-episodes", "4",
        "--no-precision", "--seed", "5", "--num-envs", "4", "--unroll-length", "8", "--minibatch-size", "16",
@@ -33,7 +38,7 @@ EVAL_COST = 1000.0  # seconds each evaluation seems to take on the run's clock (
 
 
 def shifted_run(argv=None, resume=None, policy_calls=None, **settings):
-    """``common.run`` of ``python -m train.ppo argv`` (or ``--resume resume``) with :func:`shift_by`'s update;
+    """``train.run.run`` of ``python -m train.ppo argv`` (or ``--resume resume``) with :func:`shift_by`'s update;
     ``policy_calls``: a list that gets one entry per call of the trainer's ``policy``. Returns
     ``(result, trainer)`` (the trainer as the CLI built it). The runs of the same env compile the same programs:
     the later ones load them from the persistent compilation cache."""
@@ -42,13 +47,13 @@ def shifted_run(argv=None, resume=None, policy_calls=None, **settings):
     run_trainer = trainer._replace(update=shift_by(OFFSET))
     if policy_calls is not None:
         run_trainer = run_trainer._replace(policy=lambda s: policy_calls.append(1) or trainer.policy(s))
-    spec = common.RunSpec(
+    spec = RunSpec(
         algo="ppo", env_name=args.env, env=env, trainer=run_trainer, config=config, run_dir=resume,
-        episode_length=int(config["ppo"]["episode_length"]), **{**common.settings_of(args), "progress": False,
+        episode_length=int(config["ppo"]["episode_length"]), **{**settings_of(args), "progress": False,
                                                                 **settings},
     )  # fmt: skip
     with cache_every_program():
-        return common.run(spec), trainer
+        return run_module.run(spec), trainer
 
 
 def rows_of(run_dir):
@@ -63,7 +68,7 @@ def evaluated(tmp_path_factory):
     checkpoint. Returns ``(run dir, result of the resumed process, trainer, env, evals.csv as first written)``."""
     extra = [0.0]
     fake_time = types.SimpleNamespace(perf_counter=lambda: time.perf_counter() + extra[0], strftime=time.strftime)
-    real_evaluate_state = common.evaluate_state
+    real_evaluate_state = evaluations.evaluate_state
 
     def slow_evaluate_state(*args, **kwargs):
         out = real_evaluate_state(*args, **kwargs)
@@ -71,8 +76,8 @@ def evaluated(tmp_path_factory):
         return out
 
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(common, "time", fake_time)
-        mp.setattr(common, "evaluate_state", slow_evaluate_state)
+        mp.setattr(run_module, "time", fake_time)
+        mp.setattr(evaluations, "evaluate_state", slow_evaluate_state)
         out = str(tmp_path_factory.mktemp("runs"))
         first, trainer = shifted_run([*RUN, "--out", out], checkpoint_every=1, stop_after_steps=128)
         path = os.path.join(first["run_dir"], periodic.EVALS_FILE)
@@ -82,7 +87,7 @@ def evaluated(tmp_path_factory):
         with open(path, "a") as f:  # evaluated after the last checkpoint, then stopped
             f.write("3,192,9.0,9.0,0.1,1.0,1.0,4.0,-99.0,4.0,0.0,9.0\n")
         result, _ = shifted_run(resume=first["run_dir"])
-    env = common.make_env("arm7", ppo_cli.env_settings(ppo_cli.parse(RUN)))
+    env = make_env("arm7", ppo_cli.env_settings(ppo_cli.parse(RUN)))
     return first["run_dir"], result, trainer, env, written
 
 
@@ -99,13 +104,13 @@ def test_rows_are_the_evaluations_of_the_states_after_their_chunks_with_the_deri
     for key in FIGURES:
         assert float(rows[-1][key]) == final[key], key
     config = {"args": {}}
-    spec = common.RunSpec(algo="ppo", env_name="arm7", env=env, trainer=trainer, config=config, episode_length=4,
+    spec = RunSpec(algo="ppo", env_name="arm7", env=env, trainer=trainer, config=config, episode_length=4,
                           eval_episodes=4, precision=False)  # fmt: skip
     states = {c: state_after(trainer, 5, c, OFFSET) for c in (2, 3)}
-    compiled = common._compiled_episodes(common.compile_evaluation_async(spec, common.evaluation_key(5), states[2]))
+    compiled = compiled_program(compile_evaluation_async(spec, evaluation_key(5), states[2]))
     for row in rows[:-1]:
         c = int(row["chunk"])
-        want = common.evaluate_state(spec, jax.random.fold_in(common.evaluation_key(5), c), states[c], None, compiled)
+        want = evaluations.evaluate_state(spec, jax.random.fold_in(evaluation_key(5), c), states[c], None, compiled)
         np.testing.assert_allclose([float(row[k]) for k in FIGURES], [want[k] for k in FIGURES], rtol=1e-5)
     assert len({r["mean_final_distance"] for r in rows}) == 3  # three states and keys: not one evaluation repeated
 
@@ -152,7 +157,7 @@ def test_tracking_env_evaluates_during_training_with_one_program(tmp_path):
     result, trainer = shifted_run(argv, policy_calls=calls)
     rows = rows_of(result["run_dir"])
     assert [int(r["chunk"]) for r in rows] == [1, 2, 3] and len(calls) == 2
-    env = common.make_env("unicycle", ppo_cli.env_settings(ppo_cli.parse(argv)))
+    env = make_env("unicycle", ppo_cli.env_settings(ppo_cli.parse(argv)))
     axes = ("x", "y", "theta", "steps", "episode_return")
 
     def episode(k, s):  # the test episode from t = 0 of the state after a chunk (compiled once, from the cache)
@@ -161,7 +166,7 @@ def test_tracking_env_evaluates_during_training_with_one_program(tmp_path):
 
     test = jax.jit(episode)
     for row in rows:
-        out = jax.device_get(test(common.evaluation_key(3), state_after(trainer, 3, int(row["chunk"]), OFFSET)))
+        out = jax.device_get(test(evaluation_key(3), state_after(trainer, 3, int(row["chunk"]), OFFSET)))
         steps = int(out["steps"])
         want = [*np.abs(out["abs_error"][:steps]).sum(0), steps, out["episode_return"]]
         np.testing.assert_allclose([float(row[k]) for k in axes], want, rtol=1e-5)
@@ -181,7 +186,7 @@ def test_eval_chunks_keys_and_kept_rows_by_hand(tmp_path, capsys):
     assert periodic.eval_chunks(4, 4) == (1, 2, 3, 4)
     assert periodic.eval_chunks(10, 3) == (1, 2, 3)  # at most one per chunk
     assert periodic.eval_chunks(1, 7) == (7,)  # the final evaluation alone
-    key = common.evaluation_key(0)
+    key = evaluation_key(0)
     np.testing.assert_array_equal(periodic.key_at(key, 7, 7), key)
     np.testing.assert_array_equal(periodic.key_at(key, 3, 7), jax.random.fold_in(key, 3))
     assert periodic.kept_chunk(2, 4) == 2 and periodic.kept_chunk(4, 4) == 3

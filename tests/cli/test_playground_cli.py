@@ -11,9 +11,9 @@ import math
 import os
 import sys
 
-from train import common
 from train import ppo as ppo_cli
 from train import td3 as td3_cli
+from train.envs import make_env
 
 TINY = [
     "--num-envs", "4", "--unroll-length", "8", "--minibatch-size", "16", "--actor-updates", "2",
@@ -43,7 +43,7 @@ def test_train_ppo_trains_cartpole_balance_with_playground_s_settings_and_resume
     assert (cfg["episode_length"], cfg["tanh_actions"], cfg["normalize_obs"], cfg["num_envs"]) == (16, True, True, 4)
 
     resumed = ppo_cli.parse(["--resume", run_dir])
-    env = common.make_env(resumed.env, ppo_cli.env_settings(resumed))
+    env = make_env(resumed.env, ppo_cli.env_settings(resumed))
     assert env.name == "playground:CartpoleBalance" and env.episode_length == 16
     assert env.env.mjx_model.impl.value == "jax"
 

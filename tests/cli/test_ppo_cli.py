@@ -15,13 +15,17 @@ import pytest
 
 from benchmarks import brax_tasks
 from jaxrl_robot.checkpoint import Checkpointer
+from jaxrl_robot.logging import MetricsLogger, read_csv
 from jaxrl_robot.types import Trainer
 from tests.subproc import ROOT, cache_every_program, cpu_env
 from train import a2c as a2c_cli
-from train import common, presets
 from train import ddpg as ddpg_cli
 from train import ppo as ppo_cli
+from train import presets
+from train import run as run_module
 from train import td3 as td3_cli
+from train.options import RunSpec
+from train.run import NonFiniteLossError, run, stop_on_signals
 
 TINY = [
     "--num-envs", "4", "--unroll-length", "8", "--minibatch-size", "16", "--actor-updates", "2",
@@ -183,12 +187,12 @@ def _nan_trainer(bad_chunk: int) -> Trainer:
 
 
 def test_nan_guard_stops_naming_the_step_and_keeps_the_last_good_checkpoint(tmp_path):
-    spec = common.RunSpec(
+    spec = RunSpec(
         algo="fake", env_name="none", env=None, trainer=_nan_trainer(bad_chunk=4), config={}, out=str(tmp_path),
         checkpoint_every=100, progress=False,
     )  # fmt: skip
-    with pytest.raises(common.NonFiniteLossError, match=r"critic_loss is nan after env step 400 \(chunk 4\)"):
-        common.run(spec)
+    with pytest.raises(NonFiniteLossError, match=r"critic_loss is nan after env step 400 \(chunk 4\)"):
+        run(spec)
     (run_dir,) = glob.glob(str(tmp_path / "fake-none-*"))
     ckpt = Checkpointer(os.path.join(run_dir, "checkpoints"))
     assert ckpt.latest_step() == 3
@@ -233,16 +237,16 @@ def test_resume_before_the_first_checkpoint_starts_that_run_over(tmp_path, capsy
     run_dir.mkdir()
     (run_dir / "config.json").write_text("{}")
     (run_dir / "metrics.csv").write_text("env_steps,critic_loss\n100,0.5\n")  # written before it was killed
-    spec = common.RunSpec(
+    spec = RunSpec(
         algo="fake", env_name="none", env=None, trainer=_nan_trainer(bad_chunk=99), config={}, run_dir=str(run_dir),
         checkpoint_every=1, stop_after_steps=300, progress=False,
     )  # fmt: skip
-    result = common.run(spec)
+    result = run(spec)
     assert "no checkpoint yet; starting this run from the beginning with its saved config" in capsys.readouterr().out
     assert result["env_steps"] == 300 and not result["finished"]
     state, record = Checkpointer(str(run_dir / "checkpoints")).restore(3, _nan_trainer(99).init(None))
     assert int(state["count"]) == 3 and record["env_steps"] == 300
-    rows = common.read_csv(str(run_dir / "metrics.csv"))
+    rows = read_csv(str(run_dir / "metrics.csv"))
     assert [int(float(r["env_steps"])) for r in rows] == [100, 200, 300]  # the killed run's row replaced
 
 
@@ -251,19 +255,19 @@ def test_sigterm_stops_after_the_chunk_with_a_checkpoint_and_resume_continues(tm
     although the checkpoint interval (100) is far, the handlers in place before come back, and
     ``--resume`` continues from chunk 3 (to 6, with ``stop_after_steps``)."""
 
-    class SignalledLogger(common.MetricsLogger):
+    class SignalledLogger(MetricsLogger):
         def write(self, step, metrics):
             super().write(step, metrics)
             if step == 300:
                 signal.raise_signal(signal.SIGTERM)
 
-    monkeypatch.setattr(common, "MetricsLogger", SignalledLogger)
+    monkeypatch.setattr(run_module, "MetricsLogger", SignalledLogger)
     before = signal.getsignal(signal.SIGTERM)
-    spec = common.RunSpec(
+    spec = RunSpec(
         algo="fake", env_name="none", env=None, trainer=_nan_trainer(bad_chunk=99), config={}, out=str(tmp_path),
         checkpoint_every=100, progress=False,
     )  # fmt: skip
-    result = common.run(spec)
+    result = run(spec)
     assert result["interrupted"] == signal.SIGTERM and not result["finished"] and result["env_steps"] == 300
     assert "SIGTERM: stopped after chunk 3, checkpoint saved" in capsys.readouterr().out
     assert signal.getsignal(signal.SIGTERM) is before
@@ -271,7 +275,7 @@ def test_sigterm_stops_after_the_chunk_with_a_checkpoint_and_resume_continues(tm
     assert ckpt.latest_step() == 3
     ckpt.close()
     monkeypatch.undo()
-    again = common.run(dataclasses.replace(spec, run_dir=result["run_dir"], stop_after_steps=600))
+    again = run(dataclasses.replace(spec, run_dir=result["run_dir"], stop_after_steps=600))
     assert again["env_steps"] == 600 and "interrupted" not in again
     state, _ = Checkpointer(os.path.join(result["run_dir"], "checkpoints")).restore(6, _nan_trainer(99).init(None))
     assert int(state["count"]) == 6
@@ -279,13 +283,13 @@ def test_sigterm_stops_after_the_chunk_with_a_checkpoint_and_resume_continues(tm
 
 def test_a_second_ctrl_c_interrupts_at_once():
     before = signal.getsignal(signal.SIGINT)
-    with common.stop_on_signals() as got:
+    with stop_on_signals() as got:
         signal.raise_signal(signal.SIGINT)
         assert got["signal"] == signal.SIGINT
         with pytest.raises(KeyboardInterrupt):
             signal.raise_signal(signal.SIGINT)
     assert signal.getsignal(signal.SIGINT) is before
-    with common.stop_on_signals(enabled=False) as got:  # several processes: the handlers stay as they were
+    with stop_on_signals(enabled=False) as got:  # several processes: the handlers stay as they were
         assert signal.getsignal(signal.SIGINT) is before and got["signal"] == 0
 
 

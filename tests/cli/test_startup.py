@@ -1,6 +1,6 @@
 """What a ``python -m train.<algo>`` process spends outside its run: MuJoCo Warp is imported only when the
 command asks for it (``train/__init__.py``, ``envs_mjx.xla.WARP_ENV``), and the process leaves as soon as its
-files are written (``train.common.exit_process``)."""
+files are written (``train.cli.exit_process``)."""
 
 import json
 import subprocess
@@ -33,8 +33,8 @@ try:
 except ConfigError as e:
     print("error:", e)
 sys.stdout.flush()
-from train import common
-common.exit_process(3)
+from train.cli import exit_process
+exit_process(3)
 """
 
 

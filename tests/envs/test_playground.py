@@ -20,7 +20,7 @@ from mujoco_playground import State, registry
 from envs_mjx import playground
 from envs_mjx.base import ActionShapeError, AutoResetWrapper, EpisodeWrapper
 from jaxrl_robot.agents import ddpg, ppo
-from train import common
+from train.envs import make_env
 from train.td3 import TD3_SETTINGS
 
 
@@ -193,11 +193,11 @@ def test_unknown_names_settings_and_a_missing_package_are_one_line_errors(monkey
         playground.load("CartpoleBalance", epsiode_length=50)
     with pytest.raises(ValueError, match=r"^playground:CartpoleBalance with \{'impl': 'jax', 'episode_length': "
                                          r"'long'\}: Could not override field 'episode_length'"):  # fmt: skip
-        common.make_env("playground:CartpoleBalance", {"episode_length": "long"})
+        make_env("playground:CartpoleBalance", {"episode_length": "long"})
 
     monkeypatch.setitem(sys.modules, "mujoco_playground", None)  # as if it were not installed
     with pytest.raises(playground.PlaygroundMissingError) as e:
-        common.make_env("playground:CartpoleBalance", {})
+        make_env("playground:CartpoleBalance", {})
     assert str(e.value) == '--env playground:CartpoleBalance needs MuJoCo Playground: pip install -e ".[playground]"'
     assert isinstance(e.value, ImportError) and isinstance(e.value, ValueError)
 
