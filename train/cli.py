@@ -89,21 +89,21 @@ def lane_mesh(devices: int) -> Mesh:
 def preparse(argv: Sequence[str], extra: Sequence[str] = ()) -> argparse.Namespace:
     """The options read ahead of the full parse, which the defaults and the processes depend on.
 
-    ``env``, ``preset``, ``resume``, ``reward``, ``env_config``, the process options
-    (:data:`~train.options.PROCESS_FIELDS`) and the ``str | None`` options named in ``extra``; other flags
-    are left to tyro (which also checks these).
+    ``env``, ``preset``, ``resume``, ``reward``, ``env_config``, ``devices`` (None: not given), the process
+    options (:data:`~train.options.PROCESS_FIELDS`) and the ``str | None`` options named in ``extra``; other
+    flags are left to tyro (which also checks these).
     """
     pre = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
     pre.add_argument("--env", default="arm7")
     pre.add_argument("--preset", default="auto")
     pre.add_argument("--env-config", dest="env_config", nargs="*", default=())
-    for name in ("resume", "reward", *PROCESS_FIELDS, *extra):
+    for name in ("resume", "reward", "devices", *PROCESS_FIELDS, *extra):
         pre.add_argument("--" + name.replace("_", "-"), dest=name, default=None)
     known, _ = pre.parse_known_args(list(argv))
     known.env_config = tuple(known.env_config)
     for name in ("resume", "reward", "coordinator", *extra):
         setattr(known, name, none_or(getattr(known, name)))
-    for name in ("num_processes", "process_id"):
+    for name in ("devices", "num_processes", "process_id"):
         setattr(known, name, none_or(getattr(known, name), int))
     return known
 
@@ -140,7 +140,8 @@ class AlgorithmCLI:
         ``Annotated[..., tyro.conf.OmitArgPrefixes]``, with a default) and any options of its own.
       config_type: the hyper-parameter dataclass (with ``replace``, ``validate`` and ``episode_length``).
       preset: ``(args, env) -> config``: the defaults of the (resolved) ``args.preset`` for ``env``,
-        the env as the run builds it from ``args``.
+        the env as the run builds it from ``args`` (``args`` holds the options read ahead: ``env``,
+        ``reward``, ``env_config``, ``devices``, ``env_fields`` and ``preset_fields``).
       make_trainer: ``(args, env, config, mesh) -> (trainer, iterations per chunk)``; ``config`` is
         validated, its ``episode_length`` set; ``mesh`` is :func:`lane_mesh` of ``--devices``, over
         which the trainer spreads its lanes.
@@ -187,7 +188,8 @@ class AlgorithmCLI:
                 self._announce(preset, known.env)
             fields = ("env", "reward", "env_config", *self.env_fields)
             variant = {k: getattr(known, k) for k in self.preset_fields if getattr(known, k) is not None}
-            ahead = self.args(self.config_type(**variant), preset=preset, **{k: getattr(known, k) for k in fields})
+            options = {k: getattr(known, k) for k in fields}
+            ahead = self.args(self.config_type(**variant), preset=preset, devices=known.devices or 0, **options)
             overrides = self.env_settings(ahead)
             built = BuiltEnv(known.env, overrides, make_env(known.env, overrides))
             config = self.preset(ahead, built.env)

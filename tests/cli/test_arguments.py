@@ -242,6 +242,14 @@ def test_the_command_line_builds_its_env_once_and_again_only_for_other_settings(
     assert not BuiltEnv("brax:fast", {"x": 1}, None).fits("brax:fast", {"x": True})  # 1 is not True
     assert not BuiltEnv("brax:fast", {}, None).fits("brax:hopper", {})
 
+
+@pytest.mark.parametrize(("argv", "devices"), [([], 0), (["--devices", "3"], 3), (["--devices=2"], 2)])
+def test_the_preset_sees_the_devices_of_the_command_line(argv, devices):
+    """A preset may scale with ``--devices`` (PPO's fast preset on arm7): the options it gets hold them."""
+    seen = []
+    cli_ = dataclasses.replace(TOY, preset=lambda args, env: seen.append(args.devices) or ToyConfig())
+    assert cli_.parse(["--env", "brax:fast", *argv]).devices == devices and seen == [devices]
+
 # Process 1 says when its first chunk is saved, then waits to be killed.
 TOY_MAIN = textwrap.dedent(
     """
