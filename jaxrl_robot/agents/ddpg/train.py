@@ -40,6 +40,7 @@ from jaxrl_robot.agents.off_policy.losses import (
     soft_update,
     twin_critic_loss,
 )
+from jaxrl_robot.agents.off_policy.member import Member, member_optimizers
 from jaxrl_robot.agents.off_policy.networks import critic_values, first_critic, init_critics
 from jaxrl_robot.types import RunningStats, Trainer, Transition
 
@@ -124,11 +125,11 @@ def make_update(
                   targets=targets, td_error=td_error, priority=priority)
 
 
-def make_member(config: DDPGConfig, action_size: int, critic_updates: int) -> trainer.Member:
-    """DDPG as a :class:`~jaxrl_robot.agents.off_policy.trainer.Member` (``critic_updates``: the run's critic
+def make_member(config: DDPGConfig, action_size: int, critic_updates: int) -> Member:
+    """DDPG as a :class:`~jaxrl_robot.agents.off_policy.member.Member` (``critic_updates``: the run's critic
     updates, over which ``lr_end_factor`` anneals the step sizes; the actor's are that over ``policy_delay``)."""
     actor, critic = make_networks(config, action_size)
-    actor_tx, critic_tx = trainer.member_optimizers(config, critic_updates)
+    actor_tx, critic_tx = member_optimizers(config, critic_updates)
 
     def init(k_actor: jax.Array, k_critic: jax.Array, obs_size: int, action_size: int) -> dict[str, Any]:
         actor_params = actor.init(k_actor, jnp.zeros((1, obs_size), jnp.float32))
@@ -137,7 +138,7 @@ def make_member(config: DDPGConfig, action_size: int, critic_updates: int) -> tr
                     target_critic_params=critic_params, actor_opt=actor_tx.init(actor_params),
                     critic_opt=critic_tx.init(critic_params), extras=())  # fmt: skip
 
-    return trainer.Member(act=actor.apply, init=init, update=make_update(config, actor, critic, actor_tx, critic_tx))
+    return Member(act=actor.apply, init=init, update=make_update(config, actor, critic, actor_tx, critic_tx))
 
 
 def make_learner(

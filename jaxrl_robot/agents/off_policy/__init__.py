@@ -6,7 +6,8 @@
   continuous steps, HER relabelling, the rows gathered for the replay.
 * :mod:`.learner` — the update loop around a member's gradient steps (:class:`Update`): sampling, PER,
   policy delay, the imitation stage, a named :class:`LearnerState`; synchronous workers (:func:`worker_shards`).
-* :mod:`.trainer` — :class:`OffPolicyState`, :func:`setup`, :func:`make_trainer` (single learner);
+* :mod:`.member` — what a member supplies (:class:`Member`); :mod:`.trainer` — :class:`OffPolicyState`,
+  :func:`setup`, :func:`make_trainer` (single learner);
   :mod:`.distributed` — synchronous and collecting workers (thesis §4.2); :mod:`.imitation` — the
   expert's pre-training stage (§6.1.2).
 * :mod:`.losses` (TD target, critic and actor losses, clipped double Q, soft updates) and :mod:`.networks`
@@ -19,7 +20,8 @@ its initial networks and its :class:`Update`.
 from jaxrl_robot.agents.off_policy.config import ANCHORS, NOISES, PRETRAINS, SCHEDULES, OffPolicyConfig
 from jaxrl_robot.agents.off_policy.distributed import Collectors, DistributedState
 from jaxrl_robot.agents.off_policy.learner import SINGLE, Learner, LearnerState, Update, Workers, worker_shards
-from jaxrl_robot.agents.off_policy.trainer import GOAL_API, Member, OffPolicyState, make_trainer
+from jaxrl_robot.agents.off_policy.member import Member
+from jaxrl_robot.agents.off_policy.trainer import GOAL_API, OffPolicyState, make_trainer
 
 __all__ = [
     "ANCHORS",

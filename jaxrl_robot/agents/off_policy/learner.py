@@ -47,25 +47,23 @@ from jaxrl_robot.agents.off_policy.losses import td_target
 from jaxrl_robot.replay import count_nonfinite
 from jaxrl_robot.types import RunningStats, Transition
 
-__all__ = ["LOSS_METRICS", "SINGLE", "Learner", "LearnerState", "Update", "Workers", "critic_target", "make_learner",
-           "sample", "worker_shards"]  # fmt: skip
+__all__ = ["LOSS_METRICS", "SINGLE", "Learner", "LearnerState", "NetworkState", "Update", "Workers", "critic_target",
+           "make_learner", "sample", "worker_shards"]  # fmt: skip
 
 LOSS_METRICS = ("critic_loss", "actor_loss", "q", "td_abs")
 PER_METRICS = ("per_nonfinite_td",)
 
 
 @struct.dataclass
-class LearnerState:
-    """What one update changes, by name: the fields of the same names of an off-policy train state
-    (:class:`~jaxrl_robot.agents.off_policy.trainer.OffPolicyState`).
+class NetworkState:
+    """An off-policy learner's networks, their targets and their optimisers, by name (the fields that both
+    :class:`LearnerState` and :class:`~jaxrl_robot.agents.off_policy.trainer.OffPolicyState` have).
 
     Attributes:
       actor_params, critic_params: online parameters θ^μ, θ^Q (twin critics stacked on a leading axis of 2).
       target_actor_params, target_critic_params: target parameters (``()`` where an algorithm has none:
         SAC's actor).
       actor_opt, critic_opt: optimiser states.
-      extras: the algorithm's own learned quantities (SAC: the temperature and its optimiser state; ``()``).
-      replay: the replay memory's state.
     """
 
     actor_params: Any
@@ -74,6 +72,18 @@ class LearnerState:
     target_critic_params: Any
     actor_opt: Any
     critic_opt: Any
+
+
+@struct.dataclass
+class LearnerState(NetworkState):
+    """What one update changes, by name: the fields of the same names of an off-policy train state
+    (:class:`~jaxrl_robot.agents.off_policy.trainer.OffPolicyState`): the :class:`NetworkState` and
+
+    Attributes:
+      extras: the algorithm's own learned quantities (SAC: the temperature and its optimiser state; ``()``).
+      replay: the replay memory's state.
+    """
+
     extras: Any
     replay: Any
 

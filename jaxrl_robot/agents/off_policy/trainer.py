@@ -47,8 +47,9 @@ from jaxrl_robot.agents import core
 from jaxrl_robot.agents.off_policy.acting import Acting, make_acting, make_noise_for
 from jaxrl_robot.agents.off_policy.config import OffPolicyConfig, with_env_target_clip
 from jaxrl_robot.agents.off_policy.imitation import Imitation, make_imitation
-from jaxrl_robot.agents.off_policy.learner import SINGLE, Learner, Update, make_learner
+from jaxrl_robot.agents.off_policy.learner import SINGLE, Learner, NetworkState, make_learner
 from jaxrl_robot.agents.off_policy.losses import linear_noise_factor
+from jaxrl_robot.agents.off_policy.member import MakeMember, Member
 from jaxrl_robot.networks import init_running_stats, update_running_stats
 from jaxrl_robot.noise import NoiseState
 from jaxrl_robot.replay import make_her, make_prioritized_replay, make_uniform_replay
@@ -75,17 +76,13 @@ GOAL_API = ("achieved_goal", "desired_goal", "compute_reward", "sample_goal", "i
 
 
 @struct.dataclass
-class OffPolicyState(core.RunState):
+class OffPolicyState(NetworkState, core.RunState):
     """Everything an off-policy run needs to continue exactly: the lanes' ``env_state`` (``'steps'``
     schedule; the last cycle's for ``'episodes'``), ``key`` and ``iteration`` (cycles or unroll phases
-    done) of :class:`~jaxrl_robot.agents.core.RunState`, and
+    done) of :class:`~jaxrl_robot.agents.core.RunState`, the networks, targets and Adam states of
+    :class:`~jaxrl_robot.agents.off_policy.learner.NetworkState` (θ^μ, θ^Q, θ^μ', θ^Q'), and
 
     Attributes:
-      actor_params, critic_params: online network parameters θ^μ, θ^Q (twin critics: the two critics'
-        parameters stacked on a leading axis of size 2).
-      target_actor_params, target_critic_params: target parameters θ^μ', θ^Q' (``()`` where the
-        algorithm has none).
-      actor_opt, critic_opt: Adam states.
       replay: uniform or prioritised replay state (stored transitions, sum-tree, β).
       noise_state: ``NoiseState [B, A]`` of every lane, split over devices.
       obs_stats: running mean and variance of the observations (used only with ``normalize_obs``).
@@ -95,12 +92,6 @@ class OffPolicyState(core.RunState):
       extras: the algorithm's own learned quantities (SAC: its temperature; ``()`` for DDPG and TD3).
     """
 
-    actor_params: Any
-    critic_params: Any
-    target_actor_params: Any
-    target_critic_params: Any
-    actor_opt: Any
-    critic_opt: Any
     replay: Any
     noise_state: NoiseState
     obs_stats: RunningStats
@@ -108,41 +99,6 @@ class OffPolicyState(core.RunState):
     demos: Any
     imitation_opt: Any
     extras: Any = ()
-
-
-class Member(NamedTuple):
-    """What an algorithm of the family supplies (``ddpg.train.make_member``, ``sac.train.make_member``).
-
-    Attributes:
-      act: ``(actor params, x [..., O]) -> action [..., A]`` in [-1, 1], deterministic (evaluation,
-        imitation; with ``sample`` None, exploring as ``act + noise``).
-      init: ``(key_actor, key_critic, obs_size, action_size) -> {field: value}``: the initial
-        :class:`~jaxrl_robot.agents.off_policy.learner.LearnerState` fields but ``replay``.
-      update: its gradient steps.
-      sample: ``(keys [b], actor params, x [b, O]) -> action [b, A]``, a stochastic policy that explores
-        by itself (SAC's), lane ``i`` drawing with ``keys[i]``; None: ``act`` plus the exploration noise.
-      metric_names: the names of ``update.extra_metrics``.
-    """
-
-    act: Callable[[Any, jax.Array], jax.Array]
-    init: Callable[[jax.Array, jax.Array, int, int], dict[str, Any]]
-    update: Update
-    sample: Callable[[jax.Array, Any, jax.Array], jax.Array] | None = None
-    metric_names: tuple[str, ...] = ()
-
-
-MakeMember = Callable[[Any, int, int], Member]
-"""``(config, action_size, critic updates of the run) -> Member``."""
-
-
-def member_optimizers(config: OffPolicyConfig, critic_updates: int) -> tuple[Any, Any]:
-    """``(actor_tx, critic_tx)``: a member's Adam optimisers (:func:`~jaxrl_robot.agents.core.make_optimizer`),
-    their step sizes annealed by ``lr_end_factor`` over the run's ``critic_updates`` (the actor's over
-    ``critic_updates // policy_delay``, the updates it takes)."""
-    actor_tx = core.make_optimizer(config.actor_lr, config.max_grad_norm, config.lr_end_factor,
-                                   critic_updates // config.policy_delay)  # fmt: skip
-    critic_tx = core.make_optimizer(config.critic_lr, config.max_grad_norm, config.lr_end_factor, critic_updates)
-    return actor_tx, critic_tx
 
 
 class Setup(NamedTuple):

@@ -31,6 +31,7 @@ from jaxrl_robot.agents import core
 from jaxrl_robot.agents.off_policy import trainer
 from jaxrl_robot.agents.off_policy.learner import LearnerState, Update, Workers, critic_target
 from jaxrl_robot.agents.off_policy.losses import anchored_actor_loss, soft_update, twin_critic_loss
+from jaxrl_robot.agents.off_policy.member import Member, member_optimizers
 from jaxrl_robot.agents.off_policy.networks import QCritic, critic_values, init_critics
 from jaxrl_robot.agents.sac.config import SACConfig
 from jaxrl_robot.agents.sac.losses import actor_loss, alpha_loss, gaussian_scale, soft_value, tanh_gaussian_sample
@@ -127,11 +128,11 @@ def make_update(
     )  # fmt: skip
 
 
-def make_member(config: SACConfig, action_size: int, critic_updates: int) -> trainer.Member:
-    """SAC as a :class:`~jaxrl_robot.agents.off_policy.trainer.Member` (``critic_updates``: the run's critic
+def make_member(config: SACConfig, action_size: int, critic_updates: int) -> Member:
+    """SAC as a :class:`~jaxrl_robot.agents.off_policy.member.Member` (``critic_updates``: the run's critic
     updates, over which ``lr_end_factor`` anneals the step sizes; the actor's are that over ``policy_delay``)."""
     actor, critic = make_networks(config, action_size)
-    actor_tx, critic_tx = trainer.member_optimizers(config, critic_updates)
+    actor_tx, critic_tx = member_optimizers(config, critic_updates)
     alpha_tx = core.make_optimizer(config.alpha_lr, 0.0)
 
     def init(k_actor: jax.Array, k_critic: jax.Array, obs_size: int, action_size: int) -> dict[str, Any]:
@@ -152,7 +153,7 @@ def make_member(config: SACConfig, action_size: int, critic_updates: int) -> tra
         return jax.vmap(lambda k, m, s: tanh_gaussian_sample(k, m, s)[0])(keys, loc, scale)
 
     update = make_update(config, actor, critic, (actor_tx, critic_tx, alpha_tx), config.entropy_target(action_size))
-    return trainer.Member(act=act, init=init, update=update, sample=sample, metric_names=("alpha",))
+    return Member(act=act, init=init, update=update, sample=sample, metric_names=("alpha",))
 
 
 def make_trainer(
