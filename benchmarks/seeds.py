@@ -20,6 +20,8 @@ import argparse
 from collections.abc import Sequence
 from typing import Any
 
+from benchmarks.arguments import nonnegative, positive
+
 PURPOSES = ("tune", "report")
 REPORT_BASE = 1_000_000
 """The first seed of the ``report`` range; ``tune`` seeds are below it. (JAX's keys take seeds up to 2**32 − 1.)"""
@@ -32,26 +34,9 @@ def add_args(p: argparse.ArgumentParser, seeds: int = 3) -> None:
     p.add_argument("--purpose", default="tune", choices=PURPOSES,
                    help=f"tune: seeds from --first-seed up (below {REPORT_BASE:,}), for choosing settings; report: "
                    f"seeds {REPORT_BASE:,} + --first-seed up, which no tuning run can draw, for the figures stated")
-    p.add_argument("--seeds", type=_positive, default=seeds, help="how many seeds")
-    p.add_argument("--first-seed", type=_nonnegative, default=0,
+    p.add_argument("--seeds", type=positive, default=seeds, help="how many seeds")
+    p.add_argument("--first-seed", type=nonnegative, default=0,
                    help="the first seed's offset within the purpose's range (default 0)")  # fmt: skip
-
-
-def _positive(text: str) -> int:
-    value = _nonnegative(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{value} is out of range; allowed >= 1")
-    return value
-
-
-def _nonnegative(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{value} is out of range; allowed >= 0")
-    return value
 
 
 def seed_ids(purpose: str, n: int, first: int = 0) -> list[int]:
