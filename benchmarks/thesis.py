@@ -510,6 +510,29 @@ def deviations_markdown(rows: list[dict], faithful: dict[str, dict]) -> list[str
     return lines
 
 
+TABLE_COLUMNS = {
+    "precise": "row; thesis (5 cm):; ours within 2 cm:; ours within 1 cm:; seeds (2 cm / 1 cm); met (≥ 95 / ≥ 90); "
+               "within 5 cm:; wall s:; command",
+    "arm": "row; thesis:; faithful (thesis's setting):; ours (mean ± std):; seeds; met (≥ 95); at 2 cm / 1 cm:; "
+           "wall s:; command",
+    "tracking": "row; thesis x / y / θ-z; faithful x / y / θ-z; ours x:; ours y:; ours θ-z:; "
+                "ours per step x / y / θ-z; test steps:; seeds (x / y / θ-z); goal; met; wall s:; command",
+    "driving": "row; road; thesis success / collision / out / overtakes; faithful success:; ours success:; "
+               "collisions:; overtakes:; km/h:; seeds; met; wall s:; command",
+}  # fmt: skip
+"""The columns of a thesis table's section by the kind of its rows (``precise``: an arm table at a 1 cm goal),
+``;``-separated; a trailing ``:`` aligns the column to the right."""
+
+
+def table_header(kind: str) -> list[str]:
+    """The header and alignment rows of a section of ``kind`` (:data:`TABLE_COLUMNS`; another kind: row, thesis,
+    ours, status)."""
+    columns = [c.strip() for c in TABLE_COLUMNS.get(kind, "row; thesis; ours; status").split(";")]
+    names = [c.removesuffix(":") for c in columns]
+    align = ["---:" if c.endswith(":") else "---" for c in columns]
+    return ["| " + " | ".join(names) + " |", "|" + "|".join(align) + "|"]
+
+
 def table_markdown(table: str, results: list[dict], fig_dir: str, rel: str,
                    faithful: dict[str, dict] | None = None) -> list[str]:  # fmt: skip
     """The section of one table: rows, thesis figures, goals, per-seed values, the faithful column (``faithful``:
@@ -520,24 +543,7 @@ def table_markdown(table: str, results: list[dict], fig_dir: str, rel: str,
     rows = [r for r in results if r["row"]["table"] == table]
     kind = rows[0]["row"]["kind"]
     precise = kind == "arm" and is_precise(rows[0]["row"])
-    if precise:
-        lines += ["| row | thesis (5 cm) | ours within 2 cm | ours within 1 cm | seeds (2 cm / 1 cm) "
-                  "| met (≥ 95 / ≥ 90) | within 5 cm | wall s | command |",
-                  "|---|---:|---:|---:|---|---|---:|---:|---|"]  # fmt: skip
-    elif kind == "arm":
-        lines += ["| row | thesis | faithful (thesis's setting) | ours (mean ± std) | seeds | met (≥ 95) "
-                  "| at 2 cm / 1 cm | wall s | command |",
-                  "|---|---:|---:|---:|---|---|---:|---:|---|"]  # fmt: skip
-    elif kind == "tracking":
-        lines += ["| row | thesis x / y / θ-z | faithful x / y / θ-z | ours x | ours y | ours θ-z "
-                  "| ours per step x / y / θ-z | test steps | seeds (x / y / θ-z) | goal | met | wall s | command |",
-                  "|---|---|---|---:|---:|---:|---|---:|---|---|---|---:|---|"]  # fmt: skip
-    elif kind == "driving":
-        lines += ["| row | road | thesis success / collision / out / overtakes | faithful success | ours success "
-                  "| collisions | overtakes | km/h | seeds | met | wall s | command |",
-                  "|---|---|---|---:|---:|---:|---:|---:|---|---|---:|---|"]  # fmt: skip
-    else:
-        lines += ["| row | thesis | ours | status |", "|---|---|---|---|"]
+    lines += table_header("precise" if precise else kind)
     columns = lines[-2].count("|") - 1
     curves: dict[str, list] = {}
     for r in rows:
