@@ -35,6 +35,7 @@ import jax
 import numpy as np
 import orbax.checkpoint as ocp
 
+from jaxrl_robot import parallel
 from jaxrl_robot.checkpoint import integrity
 from jaxrl_robot.checkpoint.integrity import (  # noqa: F401  (re-exported: integrity.__all__)
     CHECKSUMS,
@@ -195,7 +196,7 @@ class Checkpointer:
             abstract = jax.tree.map(lambda x: ocp.utils.to_shape_dtype_struct(x) if np.size(x) else None, target)
             abstract = _under_saved_names(abstract, self._saved_metadata(step))
         else:  # onto this process's first device: the saved shardings may name devices this machine lacks
-            device = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
+            device = parallel.local_sharding()
             abstract = jax.tree.map(lambda m: jax.ShapeDtypeStruct(m.shape, m.dtype, sharding=device),
                                     self._saved_metadata(step))  # fmt: skip
         args = ocp.args.Composite(state=ocp.args.StandardRestore(abstract), record=ocp.args.JsonRestore())
