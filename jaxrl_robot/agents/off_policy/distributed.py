@@ -71,7 +71,8 @@ from jaxrl_robot.agents.off_policy import trainer
 from jaxrl_robot.agents.off_policy.acting import Collected, LanePolicy
 from jaxrl_robot.agents.off_policy.config import OffPolicyConfig
 from jaxrl_robot.agents.off_policy.learner import worker_shards
-from jaxrl_robot.agents.off_policy.trainer import MakeMember, OffPolicyState
+from jaxrl_robot.agents.off_policy.member import MakeMember
+from jaxrl_robot.agents.off_policy.trainer import OffPolicyState
 from jaxrl_robot.noise import NoiseState
 from jaxrl_robot.types import Metrics, RunningStats, Trainer
 
