@@ -41,7 +41,7 @@ def test_success_at_each_threshold_equals_a_run_on_the_env_with_that_threshold()
     not the threshold): the 2 cm env's run here, and each evaluation's own ``success_rate`` for 5 and 1 cm."""
     key = jax.random.PRNGKey(3)
     alone = envs_mjx.make("arm7", mode="kinematic", goal_threshold=0.02)
-    episodes = run_test_episodes(key, alone, aim_beside_the_goal(alone), 64)
+    episodes = jax.jit(lambda k: run_test_episodes(k, alone, aim_beside_the_goal(alone), 64))(key)
     oracle = {0.02: summarize_episodes(jax.device_get(episodes))["success_rate"]}
     evaluations = {}
     for own in (0.05, 0.01):
