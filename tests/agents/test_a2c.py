@@ -19,7 +19,6 @@ from envs_mjx.config import ConfigError, check_range
 from jaxrl_robot.agents.a2c import (
     A2CConfig,
     A3CConfig,
-    Buffer,
     actor_loss,
     critic_loss,
     init_push_state,
@@ -34,6 +33,7 @@ from jaxrl_robot.agents.a2c import (
 )
 from jaxrl_robot.evaluation import run_test_episodes
 from jaxrl_robot.networks import gaussian_entropy
+from jaxrl_robot.types import Transition
 from tests.subproc import ROOT, cpu_env
 
 
@@ -163,15 +163,15 @@ def _random_buffer(key, N, K, obs=6, act=3):
     lengths = jnp.array([N, 3, 1, N][:K])  # buffers closed early at an episode end
     mask = (jnp.arange(N)[:, None] < lengths[None, :]).astype(jnp.float32)
     ends = (jnp.arange(N)[:, None] == lengths[None, :] - 1).astype(jnp.float32) * (lengths < N)
-    return Buffer(
+    traj = Transition(
         obs=jax.random.normal(ks[0], (N, K, obs)),
         action=jax.random.normal(ks[1], (N, K, act)),
         reward=jax.random.normal(ks[2], (N, K)),
+        next_obs=jax.random.normal(ks[3], (N, K, obs)),
         termination=ends * jnp.array([0, 1, 0, 0][:K], jnp.float32),
         truncation=ends * jnp.array([0, 0, 1, 0][:K], jnp.float32),
-        next_obs=jax.random.normal(ks[3], (N, K, obs)),
-        mask=mask,
     )
+    return traj, mask
 
 
 def test_a2c_gradient_is_the_mean_of_the_worker_gradients():
@@ -182,7 +182,7 @@ def test_a2c_gradient_is_the_mean_of_the_worker_gradients():
     av = actor.init(k1, jnp.zeros((1, 6)))
     diff = (av["params"], critic.init(k2, jnp.zeros((1, 6)))["params"])
     buf = _random_buffer(k3, N=5, K=4)
-    grad = jax.jit(jax.grad(lambda d, b: loss(d, av["batch_stats"], b)[0]))
+    grad = jax.jit(jax.grad(lambda d, b: loss(d, av["batch_stats"], *b)[0]))
     all_workers = grad(diff, buf)
     single = [grad(diff, _lane(buf, i)) for i in range(4)]
     mean = jax.tree.map(lambda *g: sum(g) / 4, *single)

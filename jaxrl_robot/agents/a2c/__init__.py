@@ -8,7 +8,7 @@ from jaxrl_robot.agents.a2c.asynchrony import (
     staleness_histogram,
 )
 from jaxrl_robot.agents.a2c.config import PUSH_ORDERS, A2CConfig, A3CConfig
-from jaxrl_robot.agents.a2c.losses import Buffer, actor_loss, critic_loss, make_worker_loss, worker_targets
+from jaxrl_robot.agents.a2c.losses import actor_loss, critic_loss, make_worker_loss, worker_targets
 from jaxrl_robot.agents.a2c.train import A2CState, A3CState, NetParams, make_networks, make_train, make_trainer
 
 __all__ = [
@@ -17,7 +17,6 @@ __all__ = [
     "A2CState",
     "A3CConfig",
     "A3CState",
-    "Buffer",
     "NetParams",
     "PushState",
     "actor_loss",

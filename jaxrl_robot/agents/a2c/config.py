@@ -5,8 +5,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from envs_mjx.config import ConfigError, check_choice, check_range
 from jaxrl_robot.agents.on_policy import LR_SCHEDULES, ActorCriticConfig
+from jaxrl_robot.validation import ConfigError, check_choice, check_range
 
 __all__ = ["BN_BATCHES", "LR_SCHEDULES", "PUSH_ORDERS", "A2CConfig", "A3CConfig"]
 

@@ -2,48 +2,27 @@
 
 Every function takes a ``mask [N]`` of the buffer's filled slots (a buffer closes early at the
 end of its episode, Algorithm 3 line 8) and averages over the filled slots only.
-:func:`make_worker_loss` combines them over the lanes of a :class:`Buffer` ``[N, L]`` into the
-loss whose gradient a worker pushes.
+:func:`make_worker_loss` combines them over the lanes of a buffer — a
+:class:`~jaxrl_robot.types.Transition` ``[N, L]`` and its ``mask [N, L]`` — into the loss whose
+gradient a worker pushes.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any, NamedTuple
+from typing import Any
 
 import chex
 import jax
 import jax.numpy as jnp
 
+from jaxrl_robot import parallel
 from jaxrl_robot.agents.a2c.config import A2CConfig
 from jaxrl_robot.networks import Critic, GaussianActor, apply_actor, gaussian_entropy, gaussian_log_prob
 from jaxrl_robot.returns import n_step_returns
 from jaxrl_robot.types import Metrics, Transition
 
-__all__ = ["Buffer", "actor_loss", "critic_loss", "make_worker_loss", "worker_targets"]
-
-
-class Buffer(NamedTuple):
-    """Local buffers of the lanes: leaves ``[N, ...]`` for one lane (``[N, K, ...]`` for all).
-
-    Attributes:
-      obs, action, reward, termination, truncation, next_obs: as in
-        :class:`~jaxrl_robot.types.Transition`.
-      mask: 1.0 on filled slots; 0 after the lane's episode ended in this round.
-    """
-
-    obs: jax.Array
-    action: jax.Array
-    reward: jax.Array
-    termination: jax.Array
-    truncation: jax.Array
-    next_obs: jax.Array
-    mask: jax.Array
-
-    @classmethod
-    def of(cls, traj: Transition, mask: jax.Array) -> Buffer:
-        """The buffers of ``traj`` ``[N, K]`` with filled slots ``mask`` ``[N, K]``."""
-        return cls(traj.obs, traj.action, traj.reward, traj.termination, traj.truncation, traj.next_obs, mask)
+__all__ = ["actor_loss", "critic_loss", "make_worker_loss", "worker_targets"]
 
 
 def _masked_mean(x: jax.Array, mask: jax.Array) -> jax.Array:
@@ -121,8 +100,10 @@ def critic_loss(values: jax.Array, targets: jax.Array, mask: jax.Array) -> jax.A
 
 def make_worker_loss(
     config: A2CConfig, actor: GaussianActor, critic: Critic, axis_name: str | None = None
-) -> Callable[[tuple[Any, Any], Any, Buffer], tuple[jax.Array, tuple[Any, Metrics]]]:
-    """``worker_loss((actor_params, critic_params), actor_stats, buffer [N, L]) -> (loss, (new_stats, info))``.
+) -> Callable[[tuple[Any, Any], Any, Transition, jax.Array], tuple[jax.Array, tuple[Any, Metrics]]]:
+    """``worker_loss((actor_params, critic_params), actor_stats, traj [N, L], mask [N, L]) -> (loss,
+    (new_stats, info))`` on the lanes' buffers: the transitions ``traj`` (its ``obs``, ``action``,
+    ``reward``, ``next_obs``, ``termination`` and ``truncation``) and ``mask``, 1.0 on the filled slots.
 
     ``loss`` is the mean over the ``L`` lanes of each lane's Eq. 4.4 (negated) + Eq. 4.5, each
     averaged over the lane's filled slots. Its gradient with respect to the actor and critic
@@ -133,47 +114,30 @@ def make_worker_loss(
     ``normalize_advantages`` the advantages are standardised over all filled slots of the
     buffer, pooled over the mapped axis ``axis_name`` if given (A2C's devices).
     """
-    per_lane = dict(in_axes=(1, 1, 1, 1, 1, None), out_axes=1)
 
     def worker_loss(
-        diff_params: tuple[Any, Any], actor_stats: Any, buf: Buffer
+        diff_params: tuple[Any, Any], actor_stats: Any, traj: Transition, mask: jax.Array
     ) -> tuple[jax.Array, tuple[Any, Metrics]]:
         actor_params, critic_params = diff_params
-        mask = buf.mask  # [N, L]
-        values = critic.apply({"params": critic_params}, buf.obs)
-        next_values = jax.lax.stop_gradient(critic.apply({"params": critic_params}, buf.next_obs))
-        rewards = buf.reward * config.reward_scale
-        targets = jax.vmap(worker_targets, **per_lane)(
-            rewards, next_values, buf.termination, buf.truncation, mask, config.gamma
+        values = critic.apply({"params": critic_params}, traj.obs)
+        next_values = jax.lax.stop_gradient(critic.apply({"params": critic_params}, traj.next_obs))
+        rewards = traj.reward * config.reward_scale
+        targets = jax.vmap(worker_targets, in_axes=(1, 1, 1, 1, 1, None), out_axes=1)(
+            rewards, next_values, traj.termination, traj.truncation, mask, config.gamma
         )
         targets = jax.lax.stop_gradient(targets)
         adv = targets - jax.lax.stop_gradient(values)
-        counts = jnp.maximum(jnp.sum(mask, axis=0), 1.0)  # [L]
         if config.normalize_advantages:
-            # over every filled slot behind this gradient (all devices' lanes for A2C)
-            total = jnp.stack([jnp.sum(mask), jnp.sum(adv * mask), jnp.sum(adv**2 * mask)])
-            if axis_name is not None:
-                total = jax.lax.psum(total, axis_name)
-            mu = total[1] / total[0]
-            std = jnp.sqrt(jnp.maximum(total[2] / total[0] - mu**2, 0.0))
-            adv = (adv - mu) / (std + 1e-8)
-        if config.bn_batch == "lane":
-            lane_actor = lambda o, m: apply_actor(actor, actor_params, actor_stats, o, train=True, mask=m)
-            (mean, log_std), new_stats = jax.vmap(lane_actor, in_axes=(1, 1), out_axes=(1, 0))(buf.obs, mask)
-            new_stats = jax.tree.map(lambda x: jnp.mean(x, axis=0), new_stats)
-        else:
-            flat = lambda x: x.reshape((-1,) + x.shape[2:])
-            (mean, log_std), new_stats = apply_actor(
-                actor, actor_params, actor_stats, flat(buf.obs), train=True, mask=flat(mask)
-            )
-            mean, log_std = (x.reshape(mask.shape + x.shape[1:]) for x in (mean, log_std))
-        log_prob = gaussian_log_prob(mean, log_std, buf.action)
+            adv = _standardize(adv, mask, axis_name)
+        (mean, log_std), new_stats = _train_actor(config, actor, actor_params, actor_stats, traj.obs, mask)
+        log_prob = gaussian_log_prob(mean, log_std, traj.action)
         entropy = gaussian_entropy(log_std)
         lane_losses = jax.vmap(actor_loss, in_axes=(1, 1, 1, 1, None))(
             log_prob, adv, entropy, mask, config.entropy_coef
         )
         lane_c_losses = jax.vmap(critic_loss, in_axes=(1, 1, 1))(values, targets, mask)
         a_loss, c_loss = jnp.mean(lane_losses), jnp.mean(lane_c_losses)
+        counts = jnp.maximum(jnp.sum(mask, axis=0), 1.0)  # [L]
         lane_mean = lambda x: jnp.mean(jnp.sum(x * mask, axis=0) / counts)
         info = {
             "actor_loss": a_loss,
@@ -185,3 +149,29 @@ def make_worker_loss(
         return a_loss + c_loss, (new_stats, info)
 
     return worker_loss
+
+
+def _standardize(adv: jax.Array, mask: jax.Array, axis_name: str | None) -> jax.Array:
+    """``adv [N, L]`` to zero mean and unit variance over every filled slot behind one gradient (all
+    devices' lanes for A2C: summed over ``axis_name``)."""
+    total = jnp.stack([jnp.sum(mask), jnp.sum(adv * mask), jnp.sum(adv**2 * mask)])
+    if axis_name is not None:
+        total = parallel.psum(total, axis_name)
+    mu = total[1] / total[0]
+    std = jnp.sqrt(jnp.maximum(total[2] / total[0] - mu**2, 0.0))
+    return (adv - mu) / (std + 1e-8)
+
+
+def _train_actor(
+    config: A2CConfig, actor: GaussianActor, params: Any, stats: Any, obs: jax.Array, mask: jax.Array
+) -> tuple[tuple[jax.Array, jax.Array], Any]:
+    """The actor in training mode on the buffers ``obs [N, L, D]``: ``((mean, log_std) [N, L, A], new
+    moving averages)``, batch statistics of each lane's filled slots (``bn_batch='lane'``, the lanes'
+    moving averages then averaged) or of all of them (``'update'``)."""
+    if config.bn_batch == "lane":
+        lane_actor = lambda o, m: apply_actor(actor, params, stats, o, train=True, mask=m)
+        (mean, log_std), new_stats = jax.vmap(lane_actor, in_axes=(1, 1), out_axes=(1, 0))(obs, mask)
+        return (mean, log_std), jax.tree.map(lambda x: jnp.mean(x, axis=0), new_stats)
+    flat = lambda x: x.reshape((-1,) + x.shape[2:])
+    (mean, log_std), new_stats = apply_actor(actor, params, stats, flat(obs), train=True, mask=flat(mask))
+    return tuple(x.reshape(mask.shape + x.shape[1:]) for x in (mean, log_std)), new_stats

@@ -5,9 +5,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from envs_mjx.config import ConfigError, check_choice, check_range
-from jaxrl_robot.agents.core import check_counts
 from jaxrl_robot.agents.on_policy import ActorCriticConfig
+from jaxrl_robot.validation import ConfigError, check_choice, check_counts, check_range
 
 __all__ = ["LSTM_STARTS", "OBJECTIVES", "POLICIES", "PRETRAINS", "PPOConfig"]
 
