@@ -353,16 +353,17 @@ def test_ours_evaluates_along_training_without_changing_it(every_program_cached)
     assert two["curve_steps"] == [0, 1920]
     np.testing.assert_allclose(two["returns_deterministic"], out["returns_deterministic"], rtol=1e-5)
 
-    def whole(key):
-        state = trainer.init(key)
-        return jax.lax.scan(lambda s, _: trainer.update(s), state, None, length=trainer.num_updates)[0]
-
     from jaxrl_robot.evaluation import EVAL_KEY_OFFSET
 
-    state = jax.jit(whole)(jax.random.PRNGKey(0))  # seed 0: train.ppo --seed 0's keys (benchmarks.seeds)
+    # one uninterrupted run: init, then the updates one after another (one compiled update; a scan of the 3
+    # compiles to a program several times its size). Seed 0: train.ppo --seed 0's keys (benchmarks.seeds)
+    state, update = jax.jit(trainer.init)(jax.random.PRNGKey(0)), jax.jit(trainer.update)
+    for _ in range(trainer.num_updates):
+        state, _ = update(state)
     key = jax.random.fold_in(jax.random.PRNGKey(0), EVAL_KEY_OFFSET)
     # the mean action's episodes are the second half of one batch of 8 (the sampled ones the first)
-    expect = float(np.mean(run_test_episodes(key, env, trainer.policy(state), 8, length)["return"][4:]))
+    returns = jax.jit(lambda k, s: run_test_episodes(k, env, trainer.policy(s), 8, length)["return"])(key, state)
+    expect = float(np.mean(returns[4:]))
     np.testing.assert_allclose(out["returns_deterministic"][0], expect, rtol=1e-5)
 
 
