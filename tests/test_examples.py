@@ -22,10 +22,10 @@ spec = importlib.util.spec_from_file_location("ex", os.path.join(sys.argv[1], "e
 ex = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(ex)
 env = ex.PointReach()
-trainer = make_trainer(ex.config(60_000), env)
+trainer = make_trainer(ex.config(40_000), env)
 policy = trainer.policy(trainer.init(jax.random.PRNGKey(0)))
 untrained = jax.jit(lambda k: run_test_episodes(k, env, policy, 100, episode_length=50))(jax.random.PRNGKey(1))
-out = ex.main(["--seeds", "2", "--total-steps", "60000"])
+out = ex.main(["--seeds", "2", "--total-steps", "40000"])
 print(json.dumps({"untrained": float(np.mean(untrained["success"])), "success": np.asarray(out["success"]).tolist(),
                   "returns": np.asarray(out["returns"]).tolist()}))
 """
