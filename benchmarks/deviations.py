@@ -25,7 +25,7 @@ THESIS_ENV: dict[str, dict[str, Any]] = {
     "arm7_precise": {"mode": "kinematic", "goal_threshold": 0.05},  # the thesis's goal is 5 cm
 }
 """The thesis's plant where an env's default config is not it (every other default config field is the
-thesis's value, SPEC §E)."""
+thesis's value: Eq. 3.19-3.23 and §3.5's plants)."""
 
 THESIS_FIXES: dict[tuple[str, str], dict[str, Any]] = {
     ("ddpg", "tracking"): {"actor_output": "sigmoid"},  # §3.5.2: sigmoid × C (ours: tanh, actions in [-1, 1])

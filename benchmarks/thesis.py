@@ -165,7 +165,7 @@ ROWS: tuple[Row, ...] = (
           ("--env", "racecar", "--eval-episodes", "20"), RACING_THESIS[algo], "driving")
       for algo in ("ddpg", "td3")],
 )  # fmt: skip
-"""Every row of the thesis's result tables (SPEC §R)."""
+"""Every row of the thesis's result tables (chapters 3-6)."""
 
 TABLES = tuple(dict.fromkeys(r.table for r in ROWS))
 TITLES = {

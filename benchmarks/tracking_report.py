@@ -25,7 +25,7 @@ from benchmarks.arguments import nonnegative
 from benchmarks.train_throughput import RESULTS, device_label
 from train.envs import parse_value
 
-THESIS = {  # (reference, method) -> (x, y, θ or z) sums over the test episode (SPEC.md §R)
+THESIS = {  # (reference, method) -> (x, y, θ or z) sums over the test episode (Tables 4.3-4.5, 5.4-5.7)
     ("scara", "ddpg"): (2.585, 4.210, 5.389),  # Table 4.3
     ("scara", "distributed"): (0.988, 3.944, 2.081),
     ("sine", "ddpg"): (6.578, 3.495, 1.471),  # Table 4.4
@@ -42,7 +42,7 @@ THESIS = {  # (reference, method) -> (x, y, θ or z) sums over the test episode 
 """The thesis's tracking errors; DDPG-family methods are ``ddpg``/``distributed``, PPO ones
 ``mlp``/``two-stage``/``lstm`` (the thesis ran TD3 only on the racing car)."""
 
-GOAL = {  # half of the thesis's best over all its methods, per axis (SPEC.md, Tables 4.3-4.5, 5.4-5.7)
+GOAL = {  # half of the thesis's best over all its methods, per axis (Tables 4.3-4.5, 5.4-5.7)
     "scara": (0.49, 1.97, 1.04),
     "sine": (1.30, 0.86, 0.47),
     "ellipse": (0.93, 1.27, 1.68),
