@@ -1,5 +1,5 @@
 """Recurrent (LSTM) actor and critic, sequence unrolls with stored start states, and the
-start-state table of RSI episodes (thesis §5.7; SPEC §A8).
+start-state table of RSI episodes (thesis §5.7).
 
 * :class:`LSTMActor` — ``FC → LSTM → FC``: one step ``(carry, obs [..., D]) -> (carry, (mean, log_std)
   [..., A])``, the Gaussian head of :class:`~jaxrl_robot.networks.GaussianActor` (``tanh`` mean;

@@ -1,4 +1,4 @@
-"""Deterministic reproduction of asynchronous gradient pushes (A3C, thesis §4.1.1; SPEC §A4).
+"""Deterministic reproduction of asynchronous gradient pushes (A3C, thesis §4.1.1).
 
 ``W`` workers each hold a snapshot of the global parameters. After a round in which every
 worker computed one gradient with its own snapshot, the gradients are applied to the global
