@@ -175,13 +175,13 @@ RUNNER = textwrap.dedent(
     """
     import os, sys, traceback
     for name, script in zip(sys.argv[1::2], sys.argv[2::2]):
+        print(f"== {name}", flush=True)
         os.environ.pop("JAXRL_LANE_MAP", None)  # each script starts from the default lane map
         try:
             exec(compile(script, name, "exec"), {"__name__": name})
         except BaseException:
+            traceback.print_exc(file=sys.stdout)
             print(f"{name}: FAILED", flush=True)
-            traceback.print_exc()
-            sys.stderr.flush()
         else:
             print(f"{name}: PASSED", flush=True)
     """
@@ -190,16 +190,23 @@ RUNNER = textwrap.dedent(
 
 def run_on_four_devices(scripts: dict[str, str]) -> dict[str, str]:
     """Run each of ``scripts`` (name -> code) in turn in one Python subprocess on 4 fake CPU devices; its
-    verdict ``"PASSED"`` (the script printed OK and raised nothing) or the output that tells why not."""
+    verdict ``"PASSED"`` (it printed OK last and raised nothing) or what tells why not (its output, with the
+    traceback, or the process's end)."""
     argv = [x for name, code in scripts.items() for x in (name, code)]
     proc = subprocess.run([sys.executable, "-c", RUNNER, *argv], cwd=ROOT, env=cpu_env(devices=4),
                           capture_output=True, text=True, timeout=900)  # fmt: skip
-    out = proc.stdout + proc.stderr
-    lines = proc.stdout.splitlines()
     verdicts = {}
     for name in scripts:
-        at = lines.index(f"{name}: PASSED") if f"{name}: PASSED" in lines else 0
-        verdicts[name] = "PASSED" if at and lines[at - 1] == "OK" and proc.returncode == 0 else out[-6000:]
+        _, found, rest = proc.stdout.partition(f"== {name}\n")
+        lines = rest.split("\n== ")[0].splitlines()
+        passed = found and lines[-2:] == ["OK", f"{name}: PASSED"]
+        if passed:
+            verdicts[name] = "PASSED"
+        elif lines and lines[-1] == f"{name}: FAILED":  # its traceback
+            verdicts[name] = "\n".join(lines)[-4000:]
+        else:  # no OK before its verdict, or no verdict: the process ended in it or before it
+            verdicts[name] = ("\n".join(lines)[-3000:] if found else f"{name} did not run") + (
+                f"\nexit code {proc.returncode}\n{proc.stderr[-3000:]}")
     return verdicts
 
 
