@@ -309,10 +309,16 @@ class Arm7(RobotEnv):
         return sum(self.reward_terms(achieved_next, desired, achieved_prev).values())
 
     def _draw_configs(self, key: jax.Array, shape: tuple[int, ...]) -> jax.Array:
-        """Joint configurations ``[*shape, 7]`` uniform in the middle ``sample_fraction`` of each range."""
+        """Joint configurations ``[*shape, 7]`` uniform in the middle ``sample_fraction`` of each range.
+
+        Drawn as one flat vector and reshaped: the same numbers as a draw of shape ``[*shape, 7]``, which
+        XLA:CPU compiles far more slowly under ``vmap`` (15 s against 0.6 s for 32 lanes' ``[2, 16, 7]``).
+        """
         f = self.config.sample_fraction
         mid, half = 0.5 * (self.chain.lower + self.chain.upper), 0.5 * (self.chain.upper - self.chain.lower)
-        return jax.random.uniform(key, (*shape, self.chain.n), minval=mid - f * half, maxval=mid + f * half)
+        full = (*shape, self.chain.n)
+        lo, hi = (np.broadcast_to(x, full).ravel() for x in (mid - f * half, mid + f * half))
+        return jax.random.uniform(key, lo.shape, minval=lo, maxval=hi).reshape(full)
 
     def _first_feasible(self, qs: jax.Array) -> tuple[jax.Array, jax.Array]:
         """The first of ``qs [tries, 7]`` whose end-effector is feasible (home pose if none): ``(q [7], p [3])``."""

@@ -214,6 +214,21 @@ def test_sampled_goals_are_reachable_distinct_and_spread():
     assert goals.std(axis=0).min() > 0.1
 
 
+def test_configurations_drawn_flat_are_a_draw_of_the_full_shape():
+    """``_draw_configs`` draws one flat vector and reshapes it: bit for bit ``jax.random.uniform`` of shape
+    ``[*shape, 7]`` between the bounds of the middle ``sample_fraction`` of each joint's range."""
+    env = make(sample_fraction=0.3)
+    lower, upper = env.chain.lower, env.chain.upper
+    lo, hi = 0.5 * (lower + upper) - 0.15 * (upper - lower), 0.5 * (lower + upper) + 0.15 * (upper - lower)
+    key = jax.random.PRNGKey(5)
+    for shape in ((), (2, 3)):
+        drawn = np.asarray(env._draw_configs(key, shape))
+        full = np.asarray(jax.random.uniform(key, (*shape, 7), minval=lo, maxval=hi))
+        assert drawn.shape == (*shape, 7)
+        np.testing.assert_array_equal(drawn, full)
+        assert np.all((drawn >= lo) & (drawn <= hi))
+
+
 # ---------------------------------------------------------------- greedy rollout (kinematic)
 def first_episode_outcome(rec):
     first_done = np.argmax(rec["done"] > 0, axis=0)
