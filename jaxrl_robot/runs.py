@@ -15,8 +15,8 @@ A recurrent policy (PPO ``--policy lstm``) is a :class:`~jaxrl_robot.types.Recur
 advances it (for ``B`` episodes at once, broadcast the carry's leaves to ``[B, ...]`` first).
 
 Who rebuilds a run: the package that wrote it, whose *run loader* is registered per algorithm name
-under the entry-point group :data:`ENTRY_POINTS` (this project's ``train`` registers ``ppo``, ``a2c``,
-``a3c``, ``ddpg`` and ``td3`` in ``pyproject.toml``), so this module never imports the layer above it.
+under the entry-point group :data:`ENTRY_POINTS` (this project's ``pyproject.toml`` registers ``train``'s
+for each of its algorithms), so this module never imports the layer above it.
 A loader is ``loader(run_dir, config, step=None, seeds=(...)) -> LoadedRun``; ``train``'s rebuilds the
 env and the trainer exactly as ``--resume`` does and restores the checkpoint into the trainer's state.
 

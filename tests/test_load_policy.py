@@ -15,10 +15,12 @@ from jaxrl_robot.checkpoint import CheckpointDamagedError, CheckpointMismatchErr
 from jaxrl_robot.types import RecurrentPolicy
 from tests.run_dirs import make_run, state_after
 from train import a2c as a2c_cli
+from train import algorithms
 from train import ddpg as ddpg_cli
 from train import ppo as ppo_cli
 from train import sac as sac_cli
 from train import td3 as td3_cli
+from train.runs import cli_of
 
 BRAX_FAST = ["--env", "brax:fast", "--episode-length", "8", "--total-steps", "256", "--chunks", "2"]
 PPO = [*BRAX_FAST, "--num-envs", "4", "--unroll-length", "8", "--minibatch-size", "16", "--actor-hidden", "8",
@@ -128,6 +130,17 @@ def test_a_run_of_several_seeds_needs_one_chosen(ppo_run):
         runs.load_policy(os.path.join(run_dir, "seed5"), seed=4)
     run = runs.load_run(run_dir)
     assert sorted(run.states) == [4, 5] and run.step == 2 and run.env_steps == 256
+
+
+def test_a_runs_algorithm_is_a_train_module_with_a_cli():
+    """The algorithms are found, not listed: the ``train`` modules that define ``CLI`` (not ``train.eval``,
+    ``train.cli``, …); a run's is rebuilt by that ``CLI``; an unknown one is a one-line error naming them."""
+    assert algorithms() == ("a2c", "a3c", "ddpg", "ppo", "sac", "td3")
+    assert [cli_of(a).name for a in algorithms()] == list(algorithms())
+    assert cli_of("sac") is sac_cli.CLI and cli_of("a3c") is a2c_cli.CLIS["a3c"]
+    with pytest.raises(runs.RunLoadError, match=r"^unknown algorithm 'dqn' in config.json; valid: a2c, a3c, ddpg, "
+                                                r"ppo, sac, td3$"):  # fmt: skip
+        cli_of("dqn")
 
 
 def test_what_is_no_loadable_run_is_a_one_line_error(tmp_path, ppo_run):

@@ -1,5 +1,8 @@
 """Command-line entry points: ``python -m train.<algo>``.
 
+The algorithms are the modules of this package that define a module-level ``CLI`` (an
+:class:`~train.cli.AlgorithmCLI`), found by :func:`algorithms` from their source without importing them.
+
 A training command that does not ask for MuJoCo Warp (no ``impl=warp`` among its arguments, no
 ``playground:`` env, no ``--resume`` of a run that used either) imports MJX without it, which saves
 seconds of start-up (``envs_mjx.xla.WARP_ENV``; a value already set is kept).
@@ -7,10 +10,25 @@ seconds of start-up (``envs_mjx.xla.WARP_ENV``; a value already set is kept).
 
 import json
 import os
+import pkgutil
+import re
 import sys
 
-TRAINING = ("train.ppo", "train.a2c", "train.a3c", "train.ddpg", "train.td3", "train.sac")
-"""The modules whose ``python -m`` commands leave Warp out unless asked for it."""
+_DEFINES_CLI = re.compile(r"^CLI\b[^=\n]*=", re.MULTILINE)
+
+
+def algorithms() -> tuple[str, ...]:
+    """The algorithms of ``python -m train.<algo>``, sorted: the modules of this package whose source assigns
+    a module-level ``CLI`` (read, not imported, so that nothing heavy is loaded)."""
+    found = []
+    for module in pkgutil.iter_modules(__path__):
+        try:
+            with open(os.path.join(__path__[0], f"{module.name}.py"), encoding="utf-8") as f:
+                if _DEFINES_CLI.search(f.read()):
+                    found.append(module.name)
+        except OSError:  # a sub-package or a module that is not a source file defines no command
+            continue
+    return tuple(sorted(found))
 
 
 def _asks_for_warp(args: list[str]) -> bool:
@@ -32,7 +50,8 @@ def _leave_out_warp() -> None:
     argv = list(getattr(sys, "orig_argv", []))
     if "-m" in argv and argv.index("-m") + 1 < len(argv):
         i = argv.index("-m")
-        if argv[i + 1] in TRAINING and not _asks_for_warp(argv[i + 2 :]):
+        package, _, name = argv[i + 1].partition(".")
+        if package == __name__ and name in algorithms() and not _asks_for_warp(argv[i + 2 :]):
             os.environ.setdefault("JAXRL_ROBOT_WARP", "off")
 
 

@@ -34,7 +34,7 @@ from train.envs import env_overrides, episode_length
 from train.options import RunOptions
 from train.presets import a2c_preset, ppo_env_overrides
 
-__all__ = ["A2CArgs", "A3CArgs", "CLIS", "build", "draw_figures", "main", "parse"]
+__all__ = ["A2CArgs", "A3CArgs", "CLI", "CLIS", "build", "draw_figures", "main", "parse"]
 
 ALGOS = ("a2c", "a3c")
 
@@ -89,6 +89,8 @@ def _cli(algo: str, args_type: type, config_type: type) -> AlgorithmCLI:
 
 
 CLIS = {"a2c": _cli("a2c", A2CArgs, A2CConfig), "a3c": _cli("a3c", A3CArgs, A3CConfig)}
+CLI = CLIS["a2c"]
+"""``python -m train.a2c`` (``train.a3c``'s is ``CLIS["a3c"]``)."""
 
 
 def _check_algo(algo: str) -> AlgorithmCLI:

@@ -8,9 +8,13 @@ Flags, presets, run directory and figures as ``python -m train.a2c`` (see ``trai
 
 from __future__ import annotations
 
+from train.a2c import CLIS
 from train.a2c import main as _main
 
-__all__ = ["main"]
+__all__ = ["CLI", "main"]
+
+CLI = CLIS["a3c"]
+"""``python -m train.a3c``: A3C's :class:`~train.cli.AlgorithmCLI` (``train/a2c.py``)."""
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -151,6 +151,8 @@ class AlgorithmCLI:
       preset_fields: ``str`` choice fields of ``config_type`` that select a variant of the preset
         (e.g. PPO's ``policy``): read ahead and set in the config of the ``args`` the preset gets.
       after: called on process 0 with :func:`train.run.run`'s result (e.g. extra figures).
+      presets: the algorithm whose preset names ``--preset`` takes (:func:`~train.presets.resolve_preset`'s
+        ``algo``; ``""``: ``name``); the off-policy members take DDPG's.
     """
 
     name: str
@@ -162,6 +164,7 @@ class AlgorithmCLI:
     env_fields: tuple[str, ...] = ()
     preset_fields: tuple[str, ...] = ()
     after: Callable[[dict[str, Any]], Any] | None = None
+    presets: str = ""
 
     def args(self, config: Any = None, **options: Any) -> Any:
         """An ``args_type`` with ``config`` (default: ``config_type()``) and ``options``."""
@@ -183,7 +186,7 @@ class AlgorithmCLI:
         if known.resume:
             preset, config = known.preset, self.config_type()
         else:
-            preset = resolve_preset(known.preset, known.env, self.name)
+            preset = resolve_preset(known.preset, known.env, self.presets or self.name)
             if known.preset == "auto" and not _asks_for_help(argv):
                 self._announce(preset, known.env)
             fields = ("env", "reward", "env_config", *self.env_fields)
@@ -195,7 +198,7 @@ class AlgorithmCLI:
             config = self.preset(ahead, built.env)
         default = self.args(config, env=known.env, preset=preset)
         args = tyro.cli(self.args_type, args=argv, default=default, prog=f"python -m train.{self.name}")
-        args = dataclasses.replace(args, preset=resolve_preset(args.preset, args.env, self.name))
+        args = dataclasses.replace(args, preset=resolve_preset(args.preset, args.env, self.presets or self.name))
         return self.check(self.args_from_saved(args.resume, args) if args.resume else args), built
 
     def _announce(self, preset: str, env: str) -> None:

@@ -61,7 +61,7 @@ __all__ = ["CLI", "Args", "OffPolicyCLI", "OffPolicyOptions", "build", "chunked"
 
 @dataclass
 class OffPolicyOptions(RunOptions):
-    """The run options of the off-policy command lines (``train.ddpg``, ``train.td3``, ``train.sac``)."""
+    """The run options of the off-policy command lines (``train.ddpg``, ``train.td3``, ``train.sac``, …)."""
 
     chunks: int = 0
     """Reporting chunks per run, 0 or more (0: one per epoch for the 'episodes' schedule, 50 for 'steps')."""
@@ -91,8 +91,9 @@ def env_settings(args: OffPolicyOptions) -> dict[str, Any]:
 
 
 def algo_config(args: OffPolicyOptions) -> OffPolicyConfig | None:
-    """The config of ``args`` (``args.ddpg``, ``args.td3`` or ``args.sac``; None for bare options)."""
-    return getattr(args, "ddpg", None) or getattr(args, "td3", None) or getattr(args, "sac", None)
+    """The config of ``args``: its field holding an :class:`OffPolicyConfig` (``args.ddpg``, ``args.td3``,
+    ``args.sac``, …); None for bare options."""
+    return next((v for v in vars(args).values() if isinstance(v, OffPolicyConfig)), None)
 
 
 def method_of(args: OffPolicyOptions) -> str:
@@ -122,7 +123,10 @@ def distributed_flag(argv: list[str]) -> bool:
 @dataclass(frozen=True)
 class OffPolicyCLI(AlgorithmCLI):
     """An :class:`~train.cli.AlgorithmCLI` whose preset also depends on ``--distributed``
-    (read ahead of the full parse, like ``--env``); ``preset`` takes ``distributed=``."""
+    (read ahead of the full parse, like ``--env``); ``preset`` takes ``distributed=``.  Its preset names are
+    DDPG's (``brax`` and ``playground`` among them)."""
+
+    presets: str = "ddpg"
 
     def parse_with_env(self, argv: list[str] | None = None) -> tuple[Any, BuiltEnv | None]:
         argv = sys.argv[1:] if argv is None else list(argv)

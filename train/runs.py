@@ -1,8 +1,9 @@
 """Rebuild a training run from its directory: the run loader of every ``python -m train.<algo>`` run.
 
-``pyproject.toml`` registers :func:`load_run` under the ``jaxrl_robot.runs`` entry points for ``ppo``,
-``a2c``, ``a3c``, ``ddpg``, ``td3`` and ``sac``, so ``jaxrl_robot.load_policy`` finds it without importing ``train``;
-``python -m train.eval`` calls it through ``jaxrl_robot.runs.load_run``.
+``pyproject.toml`` registers :func:`load_run` under the ``jaxrl_robot.runs`` entry points, one per algorithm,
+so ``jaxrl_robot.load_policy`` finds it without importing ``train``; ``python -m train.eval`` calls it through
+``jaxrl_robot.runs.load_run``.  A run of ``algo`` is rebuilt by the ``CLI`` of ``train.<algo>``
+(:func:`train.algorithms`).
 
 The env, the trainer and the state's structure come from ``config.json`` by the path ``--resume`` takes
 (:meth:`~train.cli.AlgorithmCLI.args_from_saved`, :meth:`~train.cli.AlgorithmCLI.build`,
@@ -15,6 +16,7 @@ nothing in the run directory is written or moved.
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import math
 import os
 from collections.abc import Sequence
@@ -26,37 +28,24 @@ import jax.numpy as jnp
 from jaxrl_robot import parallel
 from jaxrl_robot.checkpoint import Checkpointer, CheckpointMismatchError, Restored
 from jaxrl_robot.runs import LoadedRun, RunLoadError, run_seeds
+from train import algorithms
 from train.cli import AlgorithmCLI
 from train.rundir import mismatch_error
 from train.seeds import SeedProgram, resolve_seed_map
 
-__all__ = ["ALGOS", "cli_of", "load_run", "rebuild"]
-
-ALGOS = ("ppo", "a2c", "a3c", "ddpg", "td3", "sac")
-"""The algorithms whose runs :func:`load_run` rebuilds."""
+__all__ = ["cli_of", "load_run", "rebuild"]
 
 
 def cli_of(algo: str) -> AlgorithmCLI:
-    """The :class:`~train.cli.AlgorithmCLI` of ``algo`` (imported on demand).
+    """The :class:`~train.cli.AlgorithmCLI` of ``algo``: the ``CLI`` of ``train.<algo>`` (imported on demand).
 
     Raises:
-      RunLoadError: ``algo`` is not one of :data:`ALGOS`.
+      RunLoadError: ``algo`` is not one of :func:`train.algorithms`.
     """
-    if algo == "ppo":
-        from train.ppo import CLI
-    elif algo in ("a2c", "a3c"):
-        from train.a2c import CLIS
-
-        CLI = CLIS[algo]
-    elif algo == "ddpg":
-        from train.ddpg import CLI
-    elif algo == "td3":
-        from train.td3 import CLI
-    elif algo == "sac":
-        from train.sac import CLI
-    else:
-        raise RunLoadError(f"unknown algorithm {algo!r} in config.json; valid: {', '.join(ALGOS)}")
-    return CLI
+    valid = algorithms()
+    if algo not in valid:
+        raise RunLoadError(f"unknown algorithm {algo!r} in config.json; valid: {', '.join(valid)}")
+    return importlib.import_module(f"train.{algo}").CLI
 
 
 def rebuild(run_dir: str, config: dict[str, Any]) -> tuple[Any, Any, Any, dict[str, Any]]:

@@ -6,8 +6,8 @@ HER, random start, imitation and the distributed workers come with it.
 >>> trainer = sac.make_trainer(sac.SACConfig(schedule="steps", total_steps=100_000), env)
 """
 
-from jaxrl_robot.agents.sac.config import SACConfig
 from jaxrl_robot.agents.sac.losses import (
+    SACActor,
     actor_loss,
     alpha_loss,
     gaussian_scale,
@@ -15,8 +15,7 @@ from jaxrl_robot.agents.sac.losses import (
     tanh_gaussian_log_prob,
     tanh_gaussian_sample,
 )
-from jaxrl_robot.agents.sac.networks import SACActor
-from jaxrl_robot.agents.sac.train import SACExtras, make_member, make_networks, make_train, make_trainer
+from jaxrl_robot.agents.sac.train import SACConfig, SACExtras, make_member, make_networks, make_train, make_trainer
 
 __all__ = [
     "SACActor",

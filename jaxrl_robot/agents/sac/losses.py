@@ -1,22 +1,56 @@
-"""SAC's objectives (Haarnoja et al. 2018, "Soft Actor-Critic Algorithms and Applications"; brax's
-``sac/losses.py``): the tanh-Gaussian policy's draws and log-probabilities, the soft value of the
-critic target, the actor loss and the temperature loss.  Mini-batch arrays ``[N]``; the caller holds the
-networks.  The critic loss and the target's reward, discount and clipping are the off-policy family's
-(:func:`~jaxrl_robot.agents.off_policy.losses.twin_critic_loss`,
+"""SAC's policy and objectives (Haarnoja et al. 2018, "Soft Actor-Critic Algorithms and Applications"; brax's
+``sac/networks.py`` and ``sac/losses.py``): the tanh-Gaussian actor (:class:`SACActor`), its draws,
+log-probabilities and mode, the soft value of the critic target, the actor loss and the temperature loss.
+Mini-batch arrays ``[N]``; the caller holds the networks.  The critic loss and the target's reward, discount
+and clipping are the off-policy family's (:func:`~jaxrl_robot.agents.off_policy.losses.twin_critic_loss`,
 :func:`~jaxrl_robot.agents.off_policy.learner.critic_target`).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import chex
+import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-__all__ = ["actor_loss", "alpha_loss", "gaussian_scale", "soft_value", "tanh_gaussian_log_prob", "tanh_gaussian_sample"]
+__all__ = [
+    "SACActor",
+    "actor_loss",
+    "alpha_loss",
+    "gaussian_scale",
+    "mode",
+    "soft_value",
+    "tanh_gaussian_log_prob",
+    "tanh_gaussian_sample",
+]
 
 _LOG_2PI = math.log(2.0 * math.pi)
+
+
+class SACActor(nn.Module):
+    """The tanh-Gaussian policy's network (brax's ``make_sac_networks`` shape: an MLP with ReLU whose last
+    layer gives the mean and the pre-softplus scale of each action dimension):
+    ``obs [..., O] -> (loc [..., A], raw scale [..., A])`` of the Gaussian before the tanh
+    (σ = softplus(raw) + min_std, :func:`gaussian_scale`)."""
+
+    action_size: int
+    hidden: Sequence[int] = (256, 256)
+
+    @nn.compact
+    def __call__(self, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
+        x = obs
+        for width in self.hidden:
+            x = nn.relu(nn.Dense(width)(x))
+        out = nn.Dense(2 * self.action_size)(x)
+        return out[..., : self.action_size], out[..., self.action_size :]
+
+
+def mode(loc: jax.Array) -> jax.Array:
+    """The deterministic action ``tanh(loc)`` (the tanh of the Gaussian's mean): ``[..., A] -> [..., A]``."""
+    return jnp.tanh(loc)
 
 
 def gaussian_scale(raw: jax.Array, min_std: float) -> jax.Array:

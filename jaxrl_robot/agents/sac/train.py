@@ -1,4 +1,5 @@
-"""SAC as a member of the off-policy family: its networks, its temperature and its gradient steps.
+"""SAC as a member of the off-policy family: its hyper-parameters (:class:`SACConfig`), its networks, its
+temperature and its gradient steps.
 
 >>> trainer = make_trainer(SACConfig(schedule="steps", total_steps=100_000), env)   # any unbatched brax Env
 >>> state = jax.jit(trainer.init)(key)
@@ -19,7 +20,8 @@ family's (:mod:`jaxrl_robot.agents.off_policy`); α and its Adam state live in t
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, Self
 
 import jax
 import jax.numpy as jnp
@@ -29,16 +31,60 @@ from flax import struct
 
 from jaxrl_robot.agents import core
 from jaxrl_robot.agents.off_policy import trainer
+from jaxrl_robot.agents.off_policy.config import OffPolicyConfig
 from jaxrl_robot.agents.off_policy.learner import LearnerState, Update, Workers, critic_target
 from jaxrl_robot.agents.off_policy.losses import anchored_actor_loss, soft_update, twin_critic_loss
 from jaxrl_robot.agents.off_policy.member import Member, member_optimizers
 from jaxrl_robot.agents.off_policy.networks import QCritic, critic_values, init_critics
-from jaxrl_robot.agents.sac.config import SACConfig
-from jaxrl_robot.agents.sac.losses import actor_loss, alpha_loss, gaussian_scale, soft_value, tanh_gaussian_sample
-from jaxrl_robot.agents.sac.networks import SACActor, mode
+from jaxrl_robot.agents.sac.losses import (
+    SACActor,
+    actor_loss,
+    alpha_loss,
+    gaussian_scale,
+    mode,
+    soft_value,
+    tanh_gaussian_sample,
+)
 from jaxrl_robot.types import Trainer, Transition
+from jaxrl_robot.validation import check_range
 
-__all__ = ["SACExtras", "make_member", "make_networks", "make_train", "make_trainer", "make_update"]
+__all__ = ["SACConfig", "SACExtras", "make_member", "make_networks", "make_train", "make_trainer", "make_update"]
+
+
+@dataclass(frozen=True)
+class SACConfig(OffPolicyConfig):
+    """Soft actor-critic (Haarnoja et al. 2018, "Soft Actor-Critic Algorithms and Applications"): a
+    tanh-Gaussian policy maximising ``Q − α log π``, twin critics regressed on
+    ``y = r + γ (1 − d) (min_k Q'_k(s', a') − α log π(a'|s'))`` with ``a' ~ π(·|s')``, and α learned so
+    that the policy's entropy stays near ``target_entropy``.  The policy explores by sampling itself: the
+    family's exploration-noise fields are not used.  Schedules, replay, PER, HER, imitation and the
+    distributed workers are the family's."""
+
+    init_alpha: float = 1.0
+    """The temperature α at the start (brax's SAC: 1)."""
+    learn_alpha: bool = True
+    """Learn α (Eq. 18 of the paper) so that the policy's entropy approaches ``target_entropy``; False
+    keeps ``init_alpha``."""
+    alpha_lr: float = 3e-4
+    """Adam learning rate of log α (brax's SAC: 3e-4)."""
+    target_entropy: float | None = None
+    """The entropy the temperature aims at; None: −action_size (the paper's; brax's SAC uses −action_size / 2)."""
+    min_std: float = 0.001
+    """The policy's σ = softplus(·) + min_std before the tanh (brax's parametrisation)."""
+
+    def validate(self) -> Self:
+        """Raise ``ConfigError`` naming the first invalid field; return self."""
+        super().validate()
+        check_range("init_alpha", self.init_alpha, 0.0, lo_open=True)
+        check_range("alpha_lr", self.alpha_lr, 0.0, lo_open=True)
+        check_range("min_std", self.min_std, 0.0, lo_open=True)
+        if self.target_entropy is not None:
+            check_range("target_entropy", self.target_entropy, float("-inf"), float("inf"), lo_open=True, hi_open=True)
+        return self
+
+    def entropy_target(self, action_size: int) -> float:
+        """``target_entropy``, or −``action_size`` where it is None."""
+        return -float(action_size) if self.target_entropy is None else float(self.target_entropy)
 
 
 @struct.dataclass
