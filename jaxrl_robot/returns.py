@@ -1,8 +1,8 @@
 """Advantage and return estimators on one stream of ``T`` transitions.
 
-Every function here works on a single stream (arrays of shape ``[T]``) and is vmapped by
-the caller over lanes (``jax.vmap(gae, in_axes=(1, 1, 1, 1, 1, None, None), out_axes=1)``
-for time-major ``[T, B]`` batches).
+Every function here works on a single stream (arrays of shape ``[T]``); :func:`over_lanes` maps one
+over the lanes of time-major ``[T, B]`` batches (``over_lanes(gae, 5)``: ``jax.vmap(gae, in_axes=(1, 1,
+1, 1, 1, None, None), out_axes=1)``).
 
 Episode ends are given as two separate flags per step, because they must be treated
 differently when bootstrapping:
@@ -24,11 +24,13 @@ The last step of the stream (``t = T - 1``) always bootstraps from ``next_values
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import chex
 import jax
 import jax.numpy as jnp
 
-__all__ = ["gae", "lambda_returns", "n_step_returns", "td_errors"]
+__all__ = ["gae", "lambda_returns", "n_step_returns", "over_lanes", "td_errors"]
 
 
 def _check_stream(*arrays: jax.Array) -> None:
@@ -184,3 +186,15 @@ def n_step_returns(
         return rewards + gamma * not_terminal * tail
 
     return jax.lax.fori_loop(1, horizon, extend, one_step)
+
+
+def over_lanes(estimator: Callable[..., jax.Array], streams: int) -> Callable[..., jax.Array]:
+    """``estimator`` (one of this module's) on every lane of time-major batches: its first ``streams``
+    arguments ``[T, B]`` (lane ``b``'s stream in column ``b``), mapped over axis 1; the rest (``gamma``,
+    ``lambda_``, ``n``) shared by the lanes; the result ``[T, B]``."""
+
+    def on_lanes(*args: object) -> jax.Array:
+        in_axes = (1,) * streams + (None,) * (len(args) - streams)
+        return jax.vmap(estimator, in_axes=in_axes, out_axes=1)(*args)
+
+    return on_lanes

@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxrl_robot.returns import gae, lambda_returns, n_step_returns, td_errors
+from jaxrl_robot.returns import gae, lambda_returns, n_step_returns, over_lanes, td_errors
 
 
 def segment_len(term, trunc, t):
@@ -112,15 +112,19 @@ def test_lambda_returns_equal_gae_plus_values_and_limits():
     np.testing.assert_allclose(gae(r, v, nv, term, trunc, gamma, 0.0), td_errors(r, v, nv, term, gamma), atol=1e-6)
 
 
-def test_vmapped_over_lanes_and_jittable():
+def test_over_lanes_maps_each_lane_s_stream_and_is_jittable():
+    """``over_lanes`` gives, column by column, the estimator of that lane's stream (ends in some lanes only)."""
     rng = np.random.default_rng(4)
     T, B = 6, 3
     r, v, nv = (f32(rng.normal(size=(T, B))) for _ in range(3))
-    zeros = jnp.zeros((T, B))
-    fn = jax.jit(jax.vmap(gae, in_axes=(1, 1, 1, 1, 1, None, None), out_axes=1), static_argnums=(5, 6))
-    out = fn(r, v, nv, zeros, zeros, 0.9, 0.95)
-    assert out.shape == (T, B)
-    np.testing.assert_allclose(out[:, 1], gae(r[:, 1], v[:, 1], nv[:, 1], zeros[:, 1], zeros[:, 1], 0.9, 0.95))
+    term, trunc = jnp.zeros((T, B)).at[2, 0].set(1.0), jnp.zeros((T, B)).at[3, 2].set(1.0)
+    out = jax.jit(over_lanes(gae, 5), static_argnums=(5, 6))(r, v, nv, term, trunc, 0.9, 0.95)
+    targets = over_lanes(lambda_returns, 4)(r, nv, term, trunc, 0.9, 0.95)
+    assert out.shape == targets.shape == (T, B)
+    for b in range(B):
+        np.testing.assert_array_equal(out[:, b], gae(r[:, b], v[:, b], nv[:, b], term[:, b], trunc[:, b], 0.9, 0.95))
+        np.testing.assert_array_equal(targets[:, b], lambda_returns(r[:, b], nv[:, b], term[:, b], trunc[:, b], 0.9,
+                                                                    0.95))  # fmt: skip
 
 
 def test_bad_shapes_rejected():

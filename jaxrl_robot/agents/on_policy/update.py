@@ -25,7 +25,7 @@ from jaxrl_robot import parallel
 from jaxrl_robot.acting import per_lane_keys
 from jaxrl_robot.agents.core import apply_gradients
 from jaxrl_robot.networks import gaussian_kl
-from jaxrl_robot.returns import gae, lambda_returns
+from jaxrl_robot.returns import gae, lambda_returns, over_lanes
 
 __all__ = [
     "draw_segments",
@@ -75,31 +75,13 @@ def draw_segments(key: jax.Array, lane_ids: jax.Array, data: Any, segment: int, 
     return jax.tree.map(take, data)
 
 
-def lane_gae(
-    rewards: jax.Array,
-    values: jax.Array,
-    next_values: jax.Array,
-    terminations: jax.Array,
-    truncations: jax.Array,
-    gamma: float,
-    lam: float,
-) -> jax.Array:
-    """GAE (Eq. 5.12, ``returns.gae``) of every lane's stream ``[T, B]``, each truncated at its end."""
-    per_lane = jax.vmap(gae, in_axes=(1, 1, 1, 1, 1, None, None), out_axes=1)
-    return per_lane(rewards, values, next_values, terminations, truncations, gamma, lam)
+lane_gae = over_lanes(gae, 5)
+"""GAE (Eq. 5.12, ``returns.gae``) of every lane's stream: ``(rewards, values, next_values, terminations,
+truncations [T, B], gamma, lam) -> [T, B]``, each truncated at its end."""
 
-
-def lane_lambda_returns(
-    rewards: jax.Array,
-    next_values: jax.Array,
-    terminations: jax.Array,
-    truncations: jax.Array,
-    gamma: float,
-    lam: float,
-) -> jax.Array:
-    """λ-returns (Eq. 5.14, ``returns.lambda_returns``) of every lane's stream ``[T, B]``."""
-    per_lane = jax.vmap(lambda_returns, in_axes=(1, 1, 1, 1, None, None), out_axes=1)
-    return per_lane(rewards, next_values, terminations, truncations, gamma, lam)
+lane_lambda_returns = over_lanes(lambda_returns, 4)
+"""λ-returns (Eq. 5.14, ``returns.lambda_returns``) of every lane's stream: ``(rewards, next_values,
+terminations, truncations [T, B], gamma, lam) -> [T, B]``."""
 
 
 def standardize(x: jax.Array) -> jax.Array:
