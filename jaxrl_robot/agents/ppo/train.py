@@ -205,7 +205,8 @@ def init_state(learner: Learner, run: core.Setup, env: Env, key: jax.Array) -> P
         obs_stats=init_running_stats(run.obs_size),
         kl_beta=jnp.asarray(config.kl_beta, jnp.float32),
         env_state=run.reset(k_env, lambda: on_policy.initial_env_params(env, learner.tables)),
-        memory=nets.memory((config.num_envs,)),
+        # split over the lanes as the chunk returns it, so the chunk's second call reuses its first program
+        memory=jax.lax.with_sharding_constraint(nets.memory((config.num_envs,)), parallel.lane_sharding(run.mesh)),
         start_table=learner.starts.table(env),
         key=k_run,
         iteration=jnp.zeros((), jnp.int32),
