@@ -273,6 +273,7 @@ def ours(env: Any, task: str, row: dict[str, float], steps: int, seeds: int, eva
     trainer_devices = devices or jax.device_count()
     points = eval_points(trainer.num_updates, evals)
     per_update = trainer.env_steps_per_update * repeat  # env steps, as brax counts them
+    replicated = parallel.lane_sharding(parallel.lane_mesh(devices or None), split=False)
 
     def segment(state: Any, buf: jax.Array, start: jax.Array, n: jax.Array) -> tuple[Any, jax.Array]:
         """``n`` updates from update ``start`` on, each chunk's training-episode return (and the acting
@@ -321,7 +322,8 @@ def ours(env: Any, task: str, row: dict[str, float], steps: int, seeds: int, eva
         """Train from ``keys`` (one seed, or ``[S]`` with the vmapped functions) with an evaluation at every
         point, each followed by ``on_eval(curve, curve_mean, per_chunk, updates)`` of the run so far."""
         state = init_fn(keys)
-        buf = jnp.full(keys.shape[:-1] + (2, trainer.num_updates), jnp.nan, jnp.float32)
+        # replicated over the trainer's mesh, as ``segment`` returns it: its later calls reuse the first's program
+        buf = jax.device_put(jnp.full(keys.shape[:-1] + (2, trainer.num_updates), jnp.nan, jnp.float32), replicated)
         curve, curve_mean, trained = [], [], 0
         for p in points:
             if p > trained:
