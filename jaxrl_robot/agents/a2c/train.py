@@ -152,6 +152,9 @@ def init_state(w: Workers, run: core.Setup, key: jax.Array) -> A2CState | A3CSta
     zero = jnp.zeros((), jnp.int32)
     if isinstance(w.config, A3CConfig):
         push = init_push_state((params, actor_opt, critic_opt), params, w.num_workers)
+        # snapshots split with their workers, as the chunk returns them: its second call reuses its first program
+        split = parallel.lane_sharding(run.mesh)
+        push = push.replace(snapshots=jax.lax.with_sharding_constraint(push.snapshots, split))
         return A3CState(push=push, env_state=env_state, key=k_run, iteration=zero)
     return A2CState(params, actor_opt, critic_opt, env_state=env_state, key=k_run, iteration=zero)
 
