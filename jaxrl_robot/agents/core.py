@@ -82,7 +82,10 @@ class Setup(NamedTuple):
         episode parameters (called inside the lanes' ``shard_map``; None: the env's defaults)."""
 
         def reset_lanes(keys: jax.Array) -> State:
-            return self.env.reset(keys, None if params is None else params())
+            state = self.env.reset(keys, None if params is None else params())
+            # plain arrays where an env's reset gives weakly typed ones (brax's reward and done), as a chunk
+            # returns them: a jitted chunk's second call then reuses its first program
+            return cast_like(state, state)
 
         lanes = parallel.P(parallel.LANES)
         return parallel.shard_lanes(reset_lanes, self.mesh, lanes, lanes)(jax.random.split(key, self.num_envs))

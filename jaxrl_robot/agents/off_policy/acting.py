@@ -38,6 +38,7 @@ from brax.envs.base import Env, State
 from envs_mjx.base import EpisodeWrapper, wrap_for_training
 from jaxrl_robot import parallel
 from jaxrl_robot.acting import lane_select, per_lane_keys
+from jaxrl_robot.agents import core
 from jaxrl_robot.agents.off_policy.config import OffPolicyConfig
 from jaxrl_robot.networks import normalize
 from jaxrl_robot.noise import Noise, NoiseState, make_noise
@@ -237,7 +238,9 @@ def _reset(lanes: _Lanes, keys: jax.Array) -> tuple[State, NoiseState]:
         env_state = jax.vmap(lanes.lane_env.reset)(keys)
     else:
         env_state = lanes.batched_env.reset(keys)
-    return env_state, _fresh_noise(lanes.noise, keys.shape[0])
+    # plain arrays where an env's reset gives weakly typed ones (brax's reward and done), as a chunk returns
+    # them: a jitted chunk's second call then reuses its first program
+    return core.cast_like(env_state, env_state), _fresh_noise(lanes.noise, keys.shape[0])
 
 
 def _lane_sum(split: int | None) -> Callable[[jax.Array], jax.Array]:
