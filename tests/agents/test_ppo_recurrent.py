@@ -242,7 +242,8 @@ def test_lstm_checkpoint_continues_exactly(lstm, tmp_path):
     ckpt.save(1, state, {"chunk": 1})
     ckpt.close()
     ckpt = Checkpointer(str(tmp_path / "ckpt"))
-    restored, _ = ckpt.restore(1, jax.tree.map(np.zeros_like, state))
+    # a target of zeros with the state's shardings: the restored state is the jitted update's input again
+    restored, _ = ckpt.restore(1, jax.tree.map(lambda x: jax.device_put(np.zeros_like(x), x.sharding), state))
     ckpt.close()
     assert np.abs(np.asarray(restored.start_table["actor"][0])).sum() > 0
     resumed, _ = update(restored)
