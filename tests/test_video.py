@@ -59,3 +59,19 @@ def test_gl_backend_follows_mujoco_gl_and_failures_name_the_library(monkeypatch)
     monkeypatch.setattr("ctypes.util.find_library", lambda name: None)
     with pytest.raises(video.RenderError, match=r"install libEGL \(Debian/Ubuntu: apt-get install libegl1\) or "):
         video.gl_backend()
+
+
+def test_a_renderer_mujoco_cannot_load_ends_a_command_in_one_line():
+    """``MUJOCO_GL`` set to a value MuJoCo refuses stops ``python -m train.<x>`` before anything else runs:
+    exit status 2 and one line naming the variable and the valid back ends (``import mujoco`` would raise)."""
+    import subprocess
+    import sys
+
+    from tests.subproc import ROOT, cpu_env
+
+    proc = subprocess.run([sys.executable, "-m", "train.eval", "no-such-run"], cwd=ROOT, capture_output=True,
+                          text=True, timeout=120, env=cpu_env(MUJOCO_GL="nogl"))  # fmt: skip
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: MUJOCO_GL='nogl': MuJoCo cannot load that renderer")
+    assert "valid: egl (libEGL, package libegl1)" in lines[0] and "osmesa" in lines[0] and "glfw" in lines[0]

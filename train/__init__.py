@@ -6,6 +6,11 @@ The algorithms are the modules of this package that define a module-level ``CLI`
 A training command that does not ask for MuJoCo Warp (no ``impl=warp`` among its arguments, no
 ``playground:`` env, no ``--resume`` of a run that used either) imports MJX without it, which saves
 seconds of start-up (``envs_mjx.xla.WARP_ENV``; a value already set is kept).
+
+``MUJOCO_GL`` (MuJoCo's choice of OpenGL back end for drawing videos) is checked first when it is set: a
+value MuJoCo does not know, or a back end whose library this machine lacks (``egl`` without libEGL,
+``osmesa`` without libOSMesa), ends the command with one line naming the variable and the choices,
+instead of the traceback ``import mujoco`` raises.
 """
 
 import json
@@ -46,6 +51,37 @@ def _asks_for_warp(args: list[str]) -> bool:
     return False
 
 
+GL_BACKENDS = ("egl", "osmesa", "glfw")
+"""The values of ``MUJOCO_GL`` MuJoCo knows: EGL (a GPU, headless), OSMesa (software) and GLFW (a display)."""
+
+
+def renderer_problem(environ: dict | None = None) -> str | None:
+    """Why MuJoCo cannot be imported with the ``MUJOCO_GL`` of ``environ`` (default ``os.environ``): one
+    line, or None where the variable is unset or ``import mujoco`` succeeds."""
+    value = (os.environ if environ is None else environ).get("MUJOCO_GL")
+    if not value:
+        return None
+    try:
+        import mujoco  # noqa: F401  (it loads the chosen OpenGL back end at import)
+    except Exception as e:  # RuntimeError for an unknown value; AttributeError/ImportError/OSError: no library
+        known = value.lower() in GL_BACKENDS
+        why = "its library is missing on this machine" if known else "MuJoCo does not know that value"
+        first = str(e).splitlines()[0] if str(e) else ""
+        return (f"MUJOCO_GL={value!r}: MuJoCo cannot load that renderer ({why}; {type(e).__name__}: {first}); "
+                f"valid: egl (libEGL, package libegl1), osmesa (libOSMesa, package libosmesa6), glfw (a display), "
+                f"or MUJOCO_GL unset")  # fmt: skip
+    return None
+
+
+def _check_renderer() -> None:
+    argv = list(getattr(sys, "orig_argv", []))
+    if "-m" in argv and argv.index("-m") + 1 < len(argv) and argv[argv.index("-m") + 1].startswith(f"{__name__}."):
+        problem = renderer_problem()
+        if problem:
+            print(f"error: {problem}", file=sys.stderr)
+            sys.exit(2)
+
+
 def _leave_out_warp() -> None:
     argv = list(getattr(sys, "orig_argv", []))
     if "-m" in argv and argv.index("-m") + 1 < len(argv):
@@ -55,4 +91,5 @@ def _leave_out_warp() -> None:
             os.environ.setdefault("JAXRL_ROBOT_WARP", "off")
 
 
+_check_renderer()
 _leave_out_warp()
