@@ -596,6 +596,8 @@ def _ppo_base_preset(name: str, env_name: str, episode_length: int, action_size:
             "fast": dict(num_envs=4096, unroll_length=8, minibatch_size=8192, actor_updates=8, critic_updates=8,
                          actor_lr=1e-3, critic_lr=1e-3, batch_norm=False, total_steps=12_000_000, reset_refresh=1.0),
         }
+        if not _precise_arm(env_name):  # the main job on a CPU: why-presets.md § PPO cpu arm
+            presets["cpu"].update(total_steps=150_000, lr_schedule="linear")
     elif family == "tracking":
         # Table 5.3 and §5.5: 256-unit nets, σ = [0.1, 0.01] (unicycle), RSI + early termination.
         unicycle = env_name.endswith("unicycle")
