@@ -35,7 +35,7 @@ TINY = [
 
 def test_cli_learns_arm7_on_a_small_budget_and_writes_the_run_directory(tmp_path):
     """The default command on a small budget: the run directory, the printed evaluation, and learning."""
-    cmd = [sys.executable, "-m", "train.ppo", "--env", "arm7", "--total-steps", "60000", "--chunks", "3",
+    cmd = [sys.executable, "-m", "train.ppo", "--env", "arm7", "--total-steps", "90000", "--chunks", "3",
            "--eval-episodes", "50", "--out", str(tmp_path)]  # fmt: skip
     env = cpu_env()
     proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
@@ -58,7 +58,7 @@ def test_cli_learns_arm7_on_a_small_budget_and_writes_the_run_directory(tmp_path
     assert result["compile"]["programs"] >= 3 and result["compile"]["cache_requests"] == result["compile"]["programs"]
     assert {s["name"] for s in result["compile"]["slowest"]} >= {"jit(chunk)", "jit(evaluation)"}
     assert result["startup_s"] > 0
-    # learning: a random policy reaches almost no goal; 60 k steps of the default preset reach most (seeds 0-2: 94-96 %)
+    # learning: a random policy reaches almost no goal; 90 k steps of the default preset reach most (seeds 0-2: 94 %)
     assert result["success_rate"] >= 0.8, result
 
 
