@@ -55,10 +55,10 @@ GL_BACKENDS = ("egl", "osmesa", "glfw")
 """The values of ``MUJOCO_GL`` MuJoCo knows: EGL (a GPU, headless), OSMesa (software) and GLFW (a display)."""
 
 
-def renderer_problem(environ: dict | None = None) -> str | None:
-    """Why MuJoCo cannot be imported with the ``MUJOCO_GL`` of ``environ`` (default ``os.environ``): one
+def renderer_problem() -> str | None:
+    """Why MuJoCo cannot be imported with this process's ``MUJOCO_GL`` (which ``import mujoco`` reads): one
     line, or None where the variable is unset or ``import mujoco`` succeeds."""
-    value = (os.environ if environ is None else environ).get("MUJOCO_GL")
+    value = os.environ.get("MUJOCO_GL")
     if not value:
         return None
     try:
