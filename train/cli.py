@@ -151,6 +151,8 @@ class AlgorithmCLI:
       preset_fields: ``str`` choice fields of ``config_type`` that select a variant of the preset
         (e.g. PPO's ``policy``): read ahead and set in the config of the ``args`` the preset gets.
       after: called on process 0 with :func:`train.run.run`'s result (e.g. extra figures).
+      default_devices: ``args -> --devices`` where the command line gives none (``args`` as ``preset`` gets
+        them; None: 0, every device).
       presets: the algorithm whose preset names ``--preset`` takes (:func:`~train.presets.resolve_preset`'s
         ``algo``; ``""``: ``name``); the off-policy members take DDPG's.
     """
@@ -165,6 +167,7 @@ class AlgorithmCLI:
     preset_fields: tuple[str, ...] = ()
     after: Callable[[dict[str, Any]], Any] | None = None
     presets: str = ""
+    default_devices: Callable[[Any], int] | None = None
 
     def args(self, config: Any = None, **options: Any) -> Any:
         """An ``args_type`` with ``config`` (default: ``config_type()``) and ``options``."""
@@ -193,10 +196,13 @@ class AlgorithmCLI:
             variant = {k: getattr(known, k) for k in self.preset_fields if getattr(known, k) is not None}
             options = {k: getattr(known, k) for k in fields}
             ahead = self.args(self.config_type(**variant), preset=preset, devices=known.devices or 0, **options)
+            if known.devices is None and self.default_devices is not None:
+                ahead = dataclasses.replace(ahead, devices=self.default_devices(ahead))
             overrides = self.env_settings(ahead)
             built = BuiltEnv(known.env, overrides, make_env(known.env, overrides))
             config = self.preset(ahead, built.env)
-        default = self.args(config, env=known.env, preset=preset)
+        devices = {} if known.resume else {"devices": ahead.devices}
+        default = self.args(config, env=known.env, preset=preset, **devices)
         args = tyro.cli(self.args_type, args=argv, default=default, prog=f"python -m train.{self.name}")
         args = dataclasses.replace(args, preset=resolve_preset(args.preset, args.env, self.presets or self.name))
         return self.check(self.args_from_saved(args.resume, args) if args.resume else args), built

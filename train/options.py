@@ -141,7 +141,7 @@ class RunOptions(RunSettings):
     """Reporting chunks per run, at least 1: metrics, progress and checkpoints happen between chunks."""
     devices: int = 0
     """Devices to spread the lanes over, 0 to the device count (0: all devices, of every process in a run
-    over several)."""
+    over several). Not given: 0, except PPO's fast main job on arm7 in one process, which runs fastest on 1."""
     coordinator: str | None = None
     """HOST:PORT of process 0 in a run over several processes (jax.distributed).
     None: $JAX_COORDINATOR_ADDRESS, else a detected SLURM / Open MPI / Kubernetes launch, else one process."""

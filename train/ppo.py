@@ -30,7 +30,7 @@ from jaxrl_robot.agents.ppo import PPOConfig
 from train.cli import AlgorithmCLI, exit_process, iterations_per_chunk
 from train.envs import env_overrides, episode_length
 from train.options import RunOptions
-from train.presets import ppo_env_overrides, ppo_preset
+from train.presets import ppo_default_devices, ppo_env_overrides, ppo_preset
 
 __all__ = ["CLI", "Args", "build", "main", "parse"]
 
@@ -56,6 +56,12 @@ def preset(args: Args, env: Any) -> PPOConfig:
     return ppo_preset(args.preset, args.env, episode_length(env), int(env.action_size), **variant)[0]
 
 
+def default_devices(args: Args) -> int:
+    """``--devices`` when not given: 1 for the ``fast`` main job on ``arm7``, else 0 (every device)
+    (:func:`train.presets.ppo_default_devices`)."""
+    return ppo_default_devices(args.preset, args.env, args.ppo.policy, args.ppo.pretrain)
+
+
 def make_trainer(args: Args, env: Any, cfg: PPOConfig, mesh: Mesh):
     """The PPO trainer: ``--chunks`` chunks of whole iterations over the lane mesh."""
     from jaxrl_robot.agents.ppo import make_trainer as make_ppo_trainer
@@ -66,7 +72,7 @@ def make_trainer(args: Args, env: Any, cfg: PPOConfig, mesh: Mesh):
 
 CLI = AlgorithmCLI(
     name="ppo", args_type=Args, config_type=PPOConfig, preset=preset, make_trainer=make_trainer,
-    env_settings=env_settings, preset_fields=("policy", "pretrain"),
+    env_settings=env_settings, preset_fields=("policy", "pretrain"), default_devices=default_devices,
 )  # fmt: skip
 
 

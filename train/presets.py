@@ -68,6 +68,7 @@ __all__ = [
     "playground_sac_ddpg_config",
     "playground_task",
     "ppo_config_of_row",
+    "ppo_default_devices",
     "ppo_env_overrides",
     "ppo_preset",
     "PPO_PRESETS",
@@ -537,6 +538,19 @@ def arm_fast_on_devices(config: PPOConfig, devices: int) -> PPOConfig:
     devices = max(1, devices)
     steps = ARM_FAST_STEPS.get(devices, 3_000_000 + 1_000_000 * round(math.log2(devices)))
     return config.replace(num_envs=4096 * devices, minibatch_size=8192 * devices, total_steps=steps)
+
+
+def ppo_default_devices(name: str, env_name: str, policy: str = "mlp", pretrain: str = "none") -> int:
+    """``--devices`` when the command line gives none: 1 for PPO ``fast`` on ``arm7`` (the main job) in a run of
+    one process, 0 (every device) otherwise. The main job's 4 096 lanes leave even one GPU waiting on each step's
+    latency rather than its arithmetic, so a second GPU adds its all-reduce and lanes without making an
+    iteration faster: on two H200s it trained for 5.7–7.0 s (4 M env steps) against 4.6–4.7 s (3 M) on one,
+    and reached 95 % after 6.6–8.3 s of training against 4.3–4.8 s
+    (``benchmarks/results/gpu-nvidia_h200-x2-main_job-x2-2gpu.md``, ``gpu-nvidia_h200-time_to_solve-arm7-x2.md``).
+    ``--devices N`` still spreads it (:func:`arm_fast_on_devices`)."""
+    main_job = resolve_preset(name, env_name) == "fast" and env_name == "arm7" and (policy, pretrain) == (
+        "mlp", "none")
+    return 1 if main_job and jax.process_count() == 1 else 0
 
 
 def lstm_variant(config: PPOConfig, name: str, family: str) -> PPOConfig:
