@@ -36,7 +36,8 @@ Wrappers (:func:`wrap_for_training` composes them):
 * :class:`VmapWrapper` — maps the unbatched env over a leading lane axis.
 * :class:`PoolResetWrapper` — a batched alternative to the two above: finished lanes take
   a pre-drawn episode from a pool that is refreshed by a fixed number of resets per step
-  (``refresh`` × lanes), so a step costs ``refresh`` resets per lane instead of one.
+  (``refresh`` × lanes), so every step costs ``refresh`` resets per lane; the auto-reset costs
+  one per lane at the steps where some lane finished (with Warp physics at every step).
 """
 
 from __future__ import annotations
@@ -318,7 +319,10 @@ class AutoResetWrapper(_ParamWrapper):
     """Resets finished episodes with a fresh key per lane (unbatched; vmap outside).
 
     Per-lane reset keys live in ``info["reset_key"]``.  Keys kept from the finished
-    step (not from the fresh episode) are listed in ``keep_keys``.
+    step (not from the fresh episode) are listed in ``keep_keys``.  The reset is computed only
+    at steps where some lane is done (:func:`run_if`; with Warp physics at every step), so an env
+    whose ``reset`` costs many steps (MuJoCo Playground's ``CheetahRun`` settles 200 physics steps)
+    steps as fast as its ``step`` between episode ends.
     """
 
     keep_keys = ("truncation", "episode_return", "episode_length", "params")
@@ -335,8 +339,19 @@ class AutoResetWrapper(_ParamWrapper):
         self._check_action(state, action)
         nstate = self.env.step(state, action)
         key, sub = jax.random.split(nstate.info["reset_key"])
-        fresh = _reset(self.env, sub, nstate.info.get("params"))
         done = nstate.done > 0
+        if backend.has_shared(physics_of(nstate)):  # Warp data: its shared fields cannot ride a batched loop
+            out = self._restart(nstate, sub, done)
+        else:
+            out = run_if(done, lambda s, k: self._restart(s, k, done), nstate, sub)
+        info = dict(out.info)
+        info["final_obs"] = nstate.obs
+        info["reset_key"] = key
+        return out.replace(info=info)
+
+    def _restart(self, nstate: State, key: jax.Array, done: jax.Array) -> State:
+        """``nstate``, or where ``done`` the fresh episode of ``reset(key)`` (with ``nstate``'s ``keep_keys``)."""
+        fresh = _reset(self.env, key, nstate.info.get("params"))
 
         def pick(a, b):
             return jnp.where(done, a, b)
@@ -348,10 +363,25 @@ class AutoResetWrapper(_ParamWrapper):
         for k in self.keep_keys:
             if k in nstate.info:
                 info[k] = nstate.info[k]
-        info["final_obs"] = nstate.obs
-        info["reset_key"] = key
         physics = backend.select(done, physics_of(fresh), physics_of(nstate))  # a Warp data's shared fields kept
         return with_physics(nstate, physics).replace(obs=pick(fresh.obs, nstate.obs), info=info)
+
+
+def run_if(pred: jax.Array, fn: Callable[[Any, Any], Any], x: Any, operand: Any) -> Any:
+    """``fn(x, operand)`` if ``pred`` else ``x``, computing ``fn`` only when ``pred`` holds, under ``jax.vmap`` too.
+
+    A ``while_loop`` of one trip or none: vmapped, it runs ``fn`` once for the whole batch when ``pred`` holds
+    in some lane and not at all otherwise, keeping ``x`` in the other lanes (``lax.cond`` vmapped with a
+    batched ``pred`` computes ``fn`` in every lane at every call). ``x`` and ``operand`` enter the loop's body
+    through an optimization barrier, so that XLA does not hoist the part of ``fn`` that depends on
+    ``operand`` alone (a reset from a key) out of the loop, where it would run at every call. ``fn(x, operand)``
+    has ``x``'s structure and types; ``pred`` is ``[]`` (a bool).
+    """
+
+    def body(carry: tuple[jax.Array, Any]) -> tuple[jax.Array, Any]:
+        return jnp.zeros_like(carry[0]), fn(*jax.lax.optimization_barrier((carry[1], operand)))
+
+    return jax.lax.while_loop(lambda c: c[0], body, (jnp.asarray(pred), x))[1]
 
 
 def map_lanes(fn: Callable[..., Any], lane_group: int, *args: Any) -> Any:
@@ -542,7 +572,8 @@ def wrap_for_training(
     ``reset_refresh = 1`` (default): ``VmapWrapper(AutoResetWrapper(EpisodeWrapper(env)))``, a
     fresh reset for every finished lane.  ``reset_refresh < 1``:
     ``PoolResetWrapper(EpisodeWrapper(env))``, which redraws that fraction of the lanes'
-    pool entries per step (cheaper when a reset costs several steps).
+    pool entries at every step (cheaper when lanes finish at most steps and a reset costs several:
+    the auto-reset computes every lane's reset at each step where some lane finished).
 
     Args:
       env: an unbatched env.

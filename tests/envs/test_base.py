@@ -139,6 +139,50 @@ class KeepsDone(Toy):
         return super().step(state, action).replace(done=state.done)
 
 
+class CountsResets(Toy):
+    """The toy whose ``reset`` depends on its key alone (no episode parameters in ``info``, as Playground's
+    envs) and computes its start through a host function that records each lane it computes in ``calls``:
+    a side-effect-free callback, which XLA may move as it moves the rest of a reset."""
+
+    calls: list = []
+
+    @staticmethod
+    def _record(x):
+        CountsResets.calls.append(len(x))
+        return x
+
+    def reset(self, rng, params=None):
+        s = super().reset(rng)
+        x = jax.pure_callback(self._record, jax.ShapeDtypeStruct(s.obs.shape, s.obs.dtype), s.obs,
+                              vmap_method="sequential")  # fmt: skip
+        return s.replace(pipeline_state=x, obs=x, info={"x0": x[0]})
+
+
+@pytest.mark.parametrize("seeds", [0, 2], ids=["lanes", "vmapped-seeds"])
+def test_auto_reset_computes_the_reset_only_at_steps_where_a_lane_is_done(seeds):
+    # Episodes of 3 steps that never terminate (zero action): lanes are done at steps 3 and 6 only. An env
+    # whose reset costs many physics steps (Playground's CheetahRun settles 200) must not pay them at every
+    # step, in a trainer's lanes nor with its seeds vmapped over them.
+    env = wrap_for_training(CountsResets(max_steps=3), num_envs=2)
+    if seeds:
+        reset, step = jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(env.step))
+        state, action = reset(jax.random.split(jax.random.PRNGKey(0), seeds)), jnp.zeros((seeds, 2, 1))
+    else:
+        reset, step = jax.jit(env.reset), jax.jit(env.step)
+        state, action = reset(jax.random.PRNGKey(0)), jnp.zeros((2, 1))
+    resets, starts = [], [np.asarray(state.obs)]
+    for _ in range(7):
+        jax.effects_barrier()
+        CountsResets.calls.clear()
+        state = step(state, action)
+        jax.effects_barrier()
+        resets.append(len(CountsResets.calls) > 0)
+        starts.append(np.asarray(state.obs))
+    assert resets == [False, False, True, False, False, True, False]
+    # the episodes that start at steps 3 and 6 are fresh draws, different from the ones before
+    assert not np.allclose(starts[3], starts[0]) and not np.allclose(starts[6], starts[3])
+
+
 @pytest.mark.parametrize("refresh", [1.0, 0.5])
 def test_time_limit_restarts_an_env_that_never_writes_done(refresh):
     # Episodes of 3 steps, reward -|x| with x constant (zero action): done at steps 3 and 6 only, and

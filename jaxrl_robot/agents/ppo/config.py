@@ -74,7 +74,8 @@ class PPOConfig(ActorCriticConfig):
     reset_refresh: float = 0.125
     """Auto-reset cost: the fraction of lanes whose next episode is drawn per step (``(0, 1]``).
     Below 1, finished lanes start from a pool of pre-drawn episodes (``envs_mjx.PoolResetWrapper``);
-    1: a fresh reset for every finished lane, computed for every lane at every step."""
+    1: a fresh reset for every finished lane, computed for every lane at the steps where some lane
+    finished (with MuJoCo Warp physics at every step)."""
     reset_group: int = 256
     """Lanes per reset-pool group (the effective group is gcd(lanes per device, reset_group));
     runs on different device counts agree when it divides the lanes per device."""
