@@ -24,6 +24,8 @@ process, or in a subprocess, which inherits ``XLA_FLAGS``).  A level already in
 compiles the tests' programs in about half the time (a DDPG update on the toy env: 3.9 s of CPU
 against 9.0 s; ``arm7``'s MJX step: 11 s against 21 s) and they run as fast; it too changes only
 how the code is compiled (the note in ``envs_mjx/xla.py`` on this option is about the default level).
+MuJoCo Warp's CPU kernels, which the Warp tests compile on a fresh machine, are built at ``-O0`` for the
+same reason (``warp.config.optimization_level``; the Warp tests' CPU 124 s -> 98 s on a fresh kernel cache).
 
 ``envs_mjx`` is imported before any test module so that its XLA:CPU setting (see
 ``envs_mjx/xla.py``) is in place before the first JAX computation of the session, whatever
@@ -32,6 +34,7 @@ order the test modules are collected in.
 
 import os
 import shutil
+import sys
 import tempfile
 
 os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
@@ -42,11 +45,13 @@ if "JAX_COMPILATION_CACHE_DIR" not in os.environ:  # set once by the session's f
     # the folder stays small and the size limit's scan of it on every write stays cheap
     os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "1")
 _flags = os.environ.get("XLA_FLAGS", "")
-if (os.environ.get("JAX_PLATFORMS") == "cpu" or shutil.which("nvidia-smi") is None) and (
-    "xla_backend_optimization_level" not in _flags
-):
+_cpu_only = os.environ.get("JAX_PLATFORMS") == "cpu" or shutil.which("nvidia-smi") is None
+if _cpu_only and "xla_backend_optimization_level" not in _flags:
     os.environ["XLA_FLAGS"] = (_flags + " --xla_backend_optimization_level=0").strip()
     if "xla_cpu_use_fusion_emitters" not in _flags:
         os.environ["XLA_FLAGS"] += " --xla_cpu_use_fusion_emitters=false"
 
 import envs_mjx  # noqa: E402, F401
+
+if _cpu_only and "warp" in sys.modules:  # MuJoCo Warp's CPU kernels at -O0: 98 s of the Warp tests' CPU against 124 s
+    sys.modules["warp"].config.optimization_level = 0
