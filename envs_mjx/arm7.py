@@ -203,10 +203,6 @@ class Arm7(RobotEnv):
     def observation_size(self) -> int:
         return 9 if self.config.obs == "goal" else 6
 
-    @property
-    def action_scale(self) -> jax.Array:
-        return jnp.asarray(self.config.action_scale, jnp.float32)
-
     # ------------------------------------------------------- pure functions
     def ee_position(self, qpos: jax.Array) -> jax.Array:
         """End-effector position ``[3]`` of joint angles ``[7]`` (plain-JAX forward kinematics)."""

@@ -127,7 +127,8 @@ class RobotEnv(Env, abc.ABC):
 
     Subclasses define ``Config`` (a frozen dataclass with the thesis's defaults and a
     ``validate()`` method), ``name``, ``observation_size`` and ``action_size`` (class attributes,
-    or properties where the config decides them), ``action_scale`` and the pure ``reset`` / ``step``.
+    or properties where the config decides them) and the pure ``reset`` / ``step``; the config's
+    ``action_scale`` is the scale vector C unless ``action_scale`` is overridden.
     """
 
     name: ClassVar[str] = "robot"
@@ -151,9 +152,12 @@ class RobotEnv(Env, abc.ABC):
         return "mjx"
 
     @property
-    @abc.abstractmethod
     def action_scale(self) -> jax.Array:
-        """The scale vector C, ``[action_size]``: env action = C * clip(a, -1, 1)."""
+        """The scale vector C, ``[action_size]`` float32: env action = C * clip(a, -1, 1).
+
+        By default ``config.action_scale`` (one number for every action, or one per action); an env
+        whose config has no such field overrides this property."""
+        return jnp.broadcast_to(jnp.asarray(self.config.action_scale, jnp.float32), (self.action_size,))
 
     @property
     def episode_length(self) -> int:

@@ -243,7 +243,7 @@ class Scara(tracking.TrackingEnv):
 
     def reference_action(self, k: jax.Array) -> jax.Array:
         """The reference's own command at step ``k``: ``(q_r(k+1) − q_r(k)) / C``, ``[3]`` (unclipped)."""
-        return (self.joint_reference(k + 1).q - self.joint_reference(k).q) / self._scale
+        return (self.joint_reference(k + 1).q - self.joint_reference(k).q) / self.action_scale
 
     def forward_kinematics(self, q: jax.Array) -> jax.Array:
         """Eq. 3.15 with this env's l1, l2, D."""
@@ -299,7 +299,7 @@ class Scara(tracking.TrackingEnv):
         cfg = self.config
         a, invalid = sanitize_action(action)
         data = state.pipeline_state
-        target = jnp.clip(data.qpos + self._scale * a, self._lo, self._hi)
+        target = jnp.clip(data.qpos + self.action_scale * a, self._lo, self._hi)
         data = data.replace(ctrl=target)
         data = jax.lax.fori_loop(0, cfg.n_substeps, lambda _, d: mjx.step(self.mjx_model, d), data)
 

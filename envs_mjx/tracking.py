@@ -84,11 +84,6 @@ class TrackingEnv(RobotEnv):
         self.mj_model = self.build_model(self.config)
         self.mjx_model = backend.put_model(self.mj_model, self.config.impl)
         self._data0 = backend.make_data(self.mj_model, self.mjx_model)
-        self._scale = jnp.asarray(self.config.action_scale, jnp.float32)
-
-    @property
-    def action_scale(self) -> jax.Array:
-        return self._scale
 
     @property
     def max_steps(self) -> int:

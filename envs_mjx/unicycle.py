@@ -278,7 +278,7 @@ class Unicycle(tracking.TrackingEnv):
         the reference to second order in ``dt``.
         """
         t_mid = (jnp.asarray(k, jnp.float32) + 0.5) * self.config.dt
-        return planar_reference(self.config.trajectory, t_mid).cmd / self._scale
+        return planar_reference(self.config.trajectory, t_mid).cmd / self.action_scale
 
     # ---------------------------------------------------------------- helpers
     def _errors(self, ref: PlanarReference, pose: jax.Array, vel: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -299,13 +299,13 @@ class Unicycle(tracking.TrackingEnv):
         nxt = self.reference(k + 1).pos
         c, s = jnp.cos(pose[2]), jnp.sin(pose[2])
         dx, dy = nxt[0] - pose[0], nxt[1] - pose[1]
-        step = jnp.stack([c * dx + s * dy, -s * dx + c * dy]) / (self._scale[0] * dt)  # Eq. 3.16
-        turn = tracking.wrap_angle(nxt[2] - pose[2]) / (self._scale[1] * dt)
+        step = jnp.stack([c * dx + s * dy, -s * dx + c * dy]) / (self.action_scale[0] * dt)  # Eq. 3.16
+        turn = tracking.wrap_angle(nxt[2] - pose[2]) / (self.action_scale[1] * dt)
         return jnp.concatenate([step, turn[None], self.reference_action(k)])
 
     def _obs(self, pose: jax.Array, vel: jax.Array, pos_err: jax.Array, vel_err: jax.Array, k: jax.Array) -> jax.Array:
         """The 14-dim (``thesis``) or 19-dim (``extended``) observation of the module docstring."""
-        vscale = jnp.stack([self._scale[0], self._scale[0], self._scale[1]])
+        vscale = jnp.stack([self.action_scale[0], self.action_scale[0], self.action_scale[1]])
         parts = [
             pose[:2] / self._pos_scale,
             jnp.stack([jnp.sin(pose[2]), jnp.cos(pose[2])]),
@@ -361,7 +361,7 @@ class Unicycle(tracking.TrackingEnv):
         """
         self.check_action(action, "model_reward")
         cfg = self.config
-        cmd = self._scale * jnp.clip(action, -1.0, 1.0)
+        cmd = self.action_scale * jnp.clip(action, -1.0, 1.0)
         pose = state.info["pose"]
         vel = jnp.stack([cmd[0] * jnp.cos(pose[2]), cmd[0] * jnp.sin(pose[2]), cmd[1]])
         pos_err, vel_err = self._errors(self.reference(self._next_k(state)), pose + vel * cfg.dt, vel)
@@ -397,7 +397,7 @@ class Unicycle(tracking.TrackingEnv):
         self.check_action(action)
         cfg = self.config
         a, invalid = sanitize_action(action)
-        cmd = self._scale * a
+        cmd = self.action_scale * a
         data, tau = self._advance(state.pipeline_state, cmd)
 
         k = self._next_k(state)

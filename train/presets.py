@@ -38,6 +38,7 @@ from typing import Any
 import jax
 
 from envs_mjx.unicycle import UnicycleConfig
+from jaxrl_robot import parallel
 from jaxrl_robot.agents.a2c import A2CConfig, A3CConfig
 from jaxrl_robot.agents.ddpg import DDPGConfig
 from jaxrl_robot.agents.ppo import PPOConfig
@@ -102,7 +103,7 @@ def resolve_preset(name: str, env_name: str | None = None, algo: str = "ppo") ->
             return "brax"
         if playground_task(env_name, algo):
             return "playground"
-        return "fast" if jax.default_backend() in ("gpu", "cuda", "rocm", "tpu") else "cpu"
+        return "fast" if parallel.on_accelerator() else "cpu"
     return name
 
 

@@ -48,7 +48,7 @@ def f32(x):
 @dataclasses.dataclass(frozen=True)
 class ReachConfig:
     max_steps: int = 30
-    scale: float = 0.15
+    action_scale: float = 0.15
     goal_radius: float = 0.1
 
     def validate(self):
@@ -62,10 +62,6 @@ class Reach(RobotEnv):
     Config = ReachConfig
     observation_size = 6
     action_size = 3
-
-    @property
-    def action_scale(self):
-        return jnp.full((3,), self.config.scale)
 
     def reset(self, rng, params=None):
         kp, kg = jax.random.split(rng)
@@ -88,7 +84,7 @@ class Reach(RobotEnv):
         d0, d1 = jnp.linalg.norm(g - p), jnp.linalg.norm(g - q)
         success = (d1 < self.config.goal_radius).astype(jnp.float32)
         out = jnp.any(jnp.abs(q) > 1.0).astype(jnp.float32)
-        reward = (d0 - d1) / self.config.scale + success - out
+        reward = (d0 - d1) / self.config.action_scale + success - out
         return state.replace(
             pipeline_state=(q, g),
             obs=jnp.concatenate([q, g - q]),

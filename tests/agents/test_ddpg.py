@@ -149,7 +149,7 @@ def _trained(trainer, chunks, seed=0):
 def test_replay_marks_termination_only(step_size, noise, expected):
     # tiny steps: every episode is cut by the time limit (truncation, d = 0);
     # saturated actions of size 2 leave the region [-1, 1]^3 at the first step (failure, d = 1)
-    env = ToyGoalEnv(max_steps=3, step_size=step_size, threshold=1e-6)
+    env = ToyGoalEnv(max_steps=3, action_scale=step_size, threshold=1e-6)
     trainer = make_trainer(_tiny(episode_length=3, noise_scale=(noise,), failure_value=-10.0), env)
     state = jax.jit(trainer.init)(jax.random.PRNGKey(0))
     update = jax.jit(trainer.update)
@@ -171,7 +171,7 @@ def test_replay_marks_termination_only(step_size, noise, expected):
 def test_termination_metric_bootstraps_the_other_endings():
     """With ``termination_metric="success"`` a failing step of the toy env (leaving the region, success
     0) no longer terminates: d = 0 and no failure value (compare the test above: d = 1, −10)."""
-    env = ToyGoalEnv(max_steps=3, step_size=2.0, threshold=1e-6)
+    env = ToyGoalEnv(max_steps=3, action_scale=2.0, threshold=1e-6)
     trainer = make_trainer(_tiny(episode_length=3, noise_scale=(10.0,), failure_value=-10.0,
                                  termination_metric="success"), env)
     state, _ = jax.jit(trainer.update)(jax.jit(trainer.init)(jax.random.PRNGKey(0)))
@@ -186,7 +186,7 @@ def test_termination_metric_bootstraps_the_other_endings():
 def test_reward_shift_enters_the_critic_target():
     """First update's critic loss with near-zero initial Q (last layers ±3e-3): sparse reward −1 on
     every stored step, so mean (Q − y)² ≈ (−1 + shift)² = 36 with shift −5 (1 if the shift were lost)."""
-    env = ToyGoalEnv(max_steps=10, step_size=1e-4, threshold=1e-6)
+    env = ToyGoalEnv(max_steps=10, action_scale=1e-4, threshold=1e-6)
     trainer = make_trainer(_tiny(episode_length=10, updates_per_cycle=1, reward_shift=-5.0, actor_hidden=(),
                                  critic_hidden=()), env)
     _, metrics = jax.jit(trainer.update)(jax.jit(trainer.init)(jax.random.PRNGKey(0)))
@@ -204,7 +204,7 @@ def test_targets_are_clipped_to_the_env_return_bounds():
     """As above, every stored reward is −1 and the initial Q ≈ 0: mean (Q − y)² ≈ y².  With the env's
     bounds [−0.5, 0] the target is clipped to −0.5 (loss 0.25, unclipped 1); with reward_scale 2 the
     bounds scale to [−1, 0] and the target −2 is clipped to −1 (loss 1, unclipped 4)."""
-    env = _BoundedToyEnv(max_steps=10, step_size=1e-4, threshold=1e-6)
+    env = _BoundedToyEnv(max_steps=10, action_scale=1e-4, threshold=1e-6)
     for scale, expected in ((1.0, 0.25), (2.0, 1.0)):
         trainer = make_trainer(_tiny(episode_length=10, updates_per_cycle=1, clip_targets_to_env=True,
                                      reward_scale=scale, actor_hidden=(), critic_hidden=()), env)
@@ -260,7 +260,7 @@ def test_observation_normaliser_tracks_stored_observations(schedule, tmp_path):
     """``normalize_obs``: the running mean/variance equal those of every stored observation
     (numpy oracle), the policy feeds the actor ``(obs − mean) / std`` and a checkpoint restores
     the statistics; off, nothing changes."""
-    env = ToyGoalEnv(max_steps=5, step_size=0.05)
+    env = ToyGoalEnv(max_steps=5, action_scale=0.05)
     kw = dict(episode_length=5, schedule=schedule, buffer_size=500)
     if schedule == "steps":
         kw.update(total_steps=40, unroll_length=5, num_envs=2)
@@ -315,7 +315,7 @@ def test_twin_critics_with_policy_delay_count_actor_and_target_updates():
     """``twin_critics`` keeps two critics (stacked, different initialisations) and their targets;
     with ``policy_delay`` 3 the actor and both targets move only at updates 3, 6, …: after 2 updates
     they are untouched while the critics trained, after 4 and 6 the actor has had 1 and 2 Adam steps."""
-    env = ToyGoalEnv(max_steps=5, step_size=0.05)
+    env = ToyGoalEnv(max_steps=5, action_scale=0.05)
     trainer = make_trainer(_tiny(twin_critics=True, policy_delay=3, per=True, episode_length=5), env)
     update = jax.jit(trainer.update)
     start = jax.jit(trainer.init)(jax.random.PRNGKey(0))
@@ -348,7 +348,7 @@ def test_twin_critics_with_policy_delay_count_actor_and_target_updates():
 def test_noise_schedule_ends_at_the_greedy_action():
     """``noise_end_factor`` 0 reached after a quarter of the run: the first iteration stores noisy
     actions, every later one exactly ``μ(s)`` (no updates run, so μ is the initial actor)."""
-    env = ToyGoalEnv(max_steps=50, step_size=0.05)
+    env = ToyGoalEnv(max_steps=50, action_scale=0.05)
     cfg = _tiny(schedule="steps", total_steps=32, num_envs=2, unroll_length=4, episode_length=50, learning_starts=400,
                 noise_scale=(0.3,), noise_end_factor=0.0, noise_decay_fraction=0.25)
     trainer = make_trainer(cfg, env)
@@ -364,7 +364,7 @@ def test_noise_schedule_ends_at_the_greedy_action():
 def test_random_start_acts_uniformly_until_learning_starts():
     """``random_start``: the rows stored before ``learning_starts`` spread over [-1, 1] (mean ≈ 0, std
     ≈ 1/√3) whatever the actor, later rows are exactly ``μ(s)`` (no noise, no updates yet)."""
-    env = ToyGoalEnv(max_steps=50, step_size=0.05)
+    env = ToyGoalEnv(max_steps=50, action_scale=0.05)
     cfg = _tiny(schedule="steps", total_steps=512, num_envs=8, unroll_length=8, episode_length=50, learning_starts=256,
                 buffer_size=1024, batch_size=2048, noise_scale=(0.0,), random_start=True)
     trainer = make_trainer(cfg, env)

@@ -40,7 +40,7 @@ SCRIPT = textwrap.dedent(
     from tests.replay.toy_goal_env import ToyGoalEnv
 
     assert len(jax.devices()) == 4, jax.devices()
-    env = ToyGoalEnv(max_steps=5, step_size=0.05)
+    env = ToyGoalEnv(max_steps=5, action_scale=0.05)
     configs = {
         "her_per": (_tiny(episode_length=5, num_envs=4, cycles_per_epoch=2, updates_per_cycle=3, her="future",
                           her_k=2, per=True, normalize_obs=True, noise_scale=(0.3,)), None),
@@ -106,7 +106,7 @@ DISTRIBUTED_SCRIPT = textwrap.dedent(
 
     assert len(jax.devices()) == 4, jax.devices()
     UPDATES_AT_360 = 2  # the third cycle's: its rows reach learning_starts before its updates
-    env = ToyGoalEnv(max_steps=5, step_size=0.05)
+    env = ToyGoalEnv(max_steps=5, action_scale=0.05)
     cfg = _tiny(episode_length=5, num_envs=4, cycles_per_epoch=3, updates_per_cycle=2, her="future", her_k=2,
                 per=True, normalize_obs=True, noise_scale=(0.3,), distributed=True, sync_workers=4,
                 collect_workers=4, collect_lanes=1, fetch_every=2, collect_noise_factors=(0.5, 1.0, 1.5, 2.0),

@@ -143,7 +143,7 @@ STEPS = _tiny(schedule="steps", total_steps=4 * 12, num_envs=2, unroll_length=1,
 
 @pytest.fixture(scope="module")
 def steps_trainer():
-    trainer = make_trainer(STEPS, ToyGoalEnv(max_steps=50, step_size=0.05), iterations_per_update=1)
+    trainer = make_trainer(STEPS, ToyGoalEnv(max_steps=50, action_scale=0.05), iterations_per_update=1)
     return trainer, jax.jit(trainer.init), jax.jit(trainer.update)
 
 
@@ -286,7 +286,7 @@ def test_one_collection_of_both_kinds_of_lane_equals_two_separate_ones(schedule)
     from jaxrl_robot.agents.off_policy import trainer
 
     config = _tiny(schedule=schedule, episode_length=3, unroll_length=4, noise_scale=(0.3,), num_envs=6)
-    s = trainer.setup(config, ToyGoalEnv(max_steps=3, step_size=0.3), make_member)
+    s = trainer.setup(config, ToyGoalEnv(max_steps=3, action_scale=0.3), make_member)
     sizes = (s.run.obs_size, s.run.action_size)
     params = s.member.init(jax.random.PRNGKey(1), jax.random.PRNGKey(0), *sizes)["actor_params"]
     stats = init_running_stats(s.run.obs_size)

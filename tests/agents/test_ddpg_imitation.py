@@ -19,6 +19,8 @@ from jaxrl_robot.imitation import expert_of, imitation_loss, mix_teacher, teache
 
 @dataclass(frozen=True)
 class DriftConfig:
+    action_scale: float = 0.2
+
     def validate(self):
         return None
 
@@ -31,10 +33,6 @@ class Drift(RobotEnv):
     observation_size = 2
     action_size = 1
     episode_length = 20
-
-    @property
-    def action_scale(self):
-        return jnp.array([0.2])
 
     def default_params(self):
         return {}

@@ -113,6 +113,7 @@ def test_config_errors_name_the_field():
 @dataclasses.dataclass(frozen=True)
 class LineConfig:
     max_steps: int = 8
+    action_scale: float = 0.3
 
 
 class Line(RobotEnv):
@@ -122,10 +123,6 @@ class Line(RobotEnv):
     Config = LineConfig
     observation_size = 2
     action_size = 1
-
-    @property
-    def action_scale(self):
-        return jnp.array([0.3])
 
     def default_params(self):
         return {"offset": jnp.zeros(())}

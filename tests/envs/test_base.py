@@ -16,13 +16,13 @@ from envs_mjx.config import ConfigError, apply_overrides, check_choice, check_ra
 @dataclasses.dataclass(frozen=True)
 class ToyConfig:
     max_steps: int = 5
-    scale: float = 0.5
+    action_scale: float = 0.5
     goal_radius: float = 0.1
     mode: str = "a"
 
     def validate(self):
         check_range("max_steps", self.max_steps, 1)
-        check_range("scale", self.scale, 0.0, lo_open=True)
+        check_range("action_scale", self.action_scale, 0.0, lo_open=True)
         check_choice("mode", self.mode, ("a", "b"))
 
 
@@ -33,10 +33,6 @@ class Toy(RobotEnv):
     Config = ToyConfig
     observation_size = 1
     action_size = 1
-
-    @property
-    def action_scale(self):
-        return jnp.array([self.config.scale])
 
     def default_params(self):
         return {"offset": jnp.zeros(())}
@@ -78,13 +74,13 @@ def test_sanitize_action_handles_nan_inf_and_range():
 def test_config_errors_name_field_and_choices():
     with pytest.raises(ConfigError, match="unknown setting 'nope'.*max_steps"):
         Toy(nope=1)
-    with pytest.raises(ConfigError, match=r"scale=-1.*\(0, inf\]"):
-        Toy(scale=-1.0)
+    with pytest.raises(ConfigError, match=r"action_scale=-1.*\(0, inf\]"):
+        Toy(action_scale=-1.0)
     with pytest.raises(ConfigError, match="mode='c'.*'a', 'b'"):
         Toy(mode="c")
     cfg = Toy.default_config()
-    new = apply_overrides(cfg, {"scale": 0.25})
-    assert new.scale == 0.25 and cfg.scale == 0.5  # caller's config untouched
+    new = apply_overrides(cfg, {"action_scale": 0.25})
+    assert new.action_scale == 0.25 and cfg.action_scale == 0.5  # caller's config untouched
 
 
 def test_registry_unknown_name_lists_valid_names():
@@ -202,7 +198,7 @@ def test_time_limit_restarts_an_env_that_never_writes_done(refresh):
 
 
 def test_action_repeat_holds_the_action_sums_rewards_and_stops_at_done():
-    env = envs_mjx.ActionRepeatWrapper(Toy(scale=2.0, goal_radius=0.1), 3)
+    env = envs_mjx.ActionRepeatWrapper(Toy(action_scale=2.0, goal_radius=0.1), 3)
     state = env.reset(jax.random.PRNGKey(4))
     x0 = float(state.obs[0])
     out = env.step(state, jnp.array([-0.05]))  # x moves by 2 · -0.05 = -0.1 three times

@@ -75,7 +75,7 @@ def test_final_goal_is_last_achieved_and_reached_at_the_end(episode):
 
 
 def test_final_is_skipped_when_the_final_state_left_the_feasible_region():
-    env = ToyGoalEnv(reward="sparse", step_size=0.4)
+    env = ToyGoalEnv(reward="sparse", action_scale=0.4)
     ep = _episode(env, jax.random.PRNGKey(0), jnp.ones((T, 3)), length=T)
     length = int(np.argmax(np.asarray(ep.termination))) + 1  # the env terminates on leaving the region
     ep = ep._replace(valid=(jnp.arange(T) < length).astype(jnp.float32))

@@ -1,7 +1,7 @@
 """A tiny goal-conditioned point-mass env with arm7's goal API, for replay and DDPG tests.
 
 A point ``p ∈ R^3`` starts uniformly in ``[-0.5, 0.5]^3``; the action moves it by
-``C · a`` with ``C = step_size``.  The goal is drawn uniformly in ``[-0.5, 0.5]^3``.  The
+``C · a`` with ``C = action_scale``.  The goal is drawn uniformly in ``[-0.5, 0.5]^3``.  The
 episode terminates on success (``‖g − p‖ < threshold``) or on leaving the feasible
 region ``‖p‖_∞ <= 1``.  Observation ``[p, g − p, g]`` (9-dim, like arm7's HER layout).
 """
@@ -21,7 +21,7 @@ from envs_mjx.config import check_choice
 @dataclasses.dataclass(frozen=True)
 class ToyGoalConfig:
     max_steps: int = 20
-    step_size: float = 0.1
+    action_scale: float = 0.1
     threshold: float = 0.1
     reward: str = "sparse"
     region: float = 1.0
@@ -35,10 +35,6 @@ class ToyGoalEnv(RobotEnv):
     Config = ToyGoalConfig
     observation_size = 9
     action_size = 3
-
-    @property
-    def action_scale(self):
-        return jnp.full((3,), self.config.step_size)
 
     # goal-conditioned API (same names and signatures as arm7)
     def achieved_goal(self, state):
