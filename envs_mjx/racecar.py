@@ -844,35 +844,19 @@ class RaceCar(RobotEnv):
                   "too_slow": too_slow, "out_limit": out_limit}  # fmt: skip
         ending = ("success", "backwards", "too_slow", "out_limit") + (("collision",) if cfg.end_on_collision else ())
         done = jnp.max(jnp.stack([events[k] for k in ending]))
-        rs = rs.replace(
-            opp_ahead=ahead,
-            damage=rs.damage + damage,
-            collisions=rs.collisions + collision,
-            car_collisions=rs.car_collisions + (damages[1] > 0.0),
-            wall_collisions=rs.wall_collisions + (damages[0] > 0.0),
-            out_count=out_count,
-            slow_count=slow_count,
-            overtakes=overtakes,
-            overtaken=overtaken,
-            time=rs.time + cfg.dt,
-        )
-        metrics = dict(state.metrics)
-        metrics.update(
-            terms,
-            **events,
-            damage=rs.damage,
-            collisions=rs.collisions,
-            car_collisions=rs.car_collisions,
-            wall_collisions=rs.wall_collisions,
-            out_count=out_count,
-            overtakes=overtakes,
-            overtaken=overtaken,
-            rank=rank,
-            progress=rs.progress,
-            speed=vx,
-            time=rs.time,
-            invalid_action=invalid,
-        )
+        counts = {  # the episode's running counts: kept in the state and reported as metrics
+            "damage": rs.damage + damage,
+            "collisions": rs.collisions + collision,
+            "car_collisions": rs.car_collisions + (damages[1] > 0.0),
+            "wall_collisions": rs.wall_collisions + (damages[0] > 0.0),
+            "out_count": out_count,
+            "overtakes": overtakes,
+            "overtaken": overtaken,
+            "time": rs.time + cfg.dt,
+        }
+        rs = rs.replace(opp_ahead=ahead, slow_count=slow_count, **counts)
+        metrics = {**state.metrics, **terms, **events, **counts, "rank": rank, "progress": rs.progress, "speed": vx,
+                   "invalid_action": invalid}  # fmt: skip
         obs = self.observe(rs)
         return state.replace(pipeline_state=rs, obs=obs, reward=reward, done=done, metrics=metrics)
 
