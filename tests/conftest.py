@@ -24,8 +24,11 @@ process, or in a subprocess, which inherits ``XLA_FLAGS``).  A level already in
 compiles the tests' programs in about half the time (a DDPG update on the toy env: 3.9 s of CPU
 against 9.0 s; ``arm7``'s MJX step: 11 s against 21 s) and they run as fast; it too changes only
 how the code is compiled (the note in ``envs_mjx/xla.py`` on this option is about the default level).
-MuJoCo Warp's CPU kernels, which the Warp tests compile on a fresh machine, are built at ``-O0`` for the
-same reason (``warp.config.optimization_level``; the Warp tests' CPU 124 s -> 98 s on a fresh kernel cache).
+Each program's machine code is generated in one piece (``--xla_cpu_parallel_codegen_split_count=1``): the
+workers already keep both cores busy, and splitting it for threads cost ``tests/agents/test_ppo.py`` 76-78 s
+of CPU against 70-72 s.  MuJoCo Warp's CPU kernels, which the Warp tests compile on a fresh machine, are
+built at ``-O0`` for the same reason (``warp.config.optimization_level``; the Warp tests' CPU 124 s -> 98 s on
+a fresh kernel cache).
 
 ``envs_mjx`` is imported before any test module so that its XLA:CPU setting (see
 ``envs_mjx/xla.py``) is in place before the first JAX computation of the session, whatever
@@ -50,6 +53,8 @@ if _cpu_only and "xla_backend_optimization_level" not in _flags:
     os.environ["XLA_FLAGS"] = (_flags + " --xla_backend_optimization_level=0").strip()
     if "xla_cpu_use_fusion_emitters" not in _flags:
         os.environ["XLA_FLAGS"] += " --xla_cpu_use_fusion_emitters=false"
+    if "xla_cpu_parallel_codegen_split_count" not in _flags:
+        os.environ["XLA_FLAGS"] += " --xla_cpu_parallel_codegen_split_count=1"
 
 import envs_mjx  # noqa: E402, F401
 
