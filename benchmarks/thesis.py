@@ -642,13 +642,20 @@ def summary_markdown(results: list[dict]) -> list[str]:
     return [*lines, ""]
 
 
-def load_faithful(path: str | None) -> dict[str, dict]:
-    """The rows of a faithful report (``--variant faithful``'s ``.json``) by row name; {} without one."""
-    if not path or not os.path.exists(path):
-        return {}
-    with open(path) as f:
-        saved = json.load(f)
-    return {r["row"]["name"]: r for r in saved.get("rows", [])}
+def faithful_paths(faithful: str | Sequence[str] | None) -> list[str]:
+    """The faithful reports a report names (one path in reports written before several could be named)."""
+    return [] if not faithful else [faithful] if isinstance(faithful, str) else list(faithful)
+
+
+def load_faithful(faithful: str | Sequence[str] | None) -> dict[str, dict]:
+    """The rows of faithful reports (``--variant faithful``'s ``.json``, one or several, each holding other rows)
+    by row name; {} without one.  A path that does not exist is passed over."""
+    rows: dict[str, dict] = {}
+    for path in faithful_paths(faithful):
+        if os.path.exists(path):
+            with open(path) as f:
+                rows.update({r["row"]["name"]: r for r in json.load(f).get("rows", [])})
+    return rows
 
 
 def header(meta: dict[str, Any]) -> list[str]:
@@ -658,7 +665,7 @@ def header(meta: dict[str, Any]) -> list[str]:
              "faithful": ", every row in the thesis's setting (`--variant faithful`)"}.get(variant, "")  # fmt: skip
     purpose = meta.get("purpose")
     seeds = (f"{meta['seeds']} seed(s) per row ({seed_words(meta)})" if purpose else f"{meta['seeds']} seed(s) per row")
-    faithful = meta.get("faithful")
+    faithful = ", ".join(f"`{os.path.basename(p)}`" for p in faithful_paths(meta.get("faithful")))
     return [
         f"# The thesis's tables with jaxrl-robot — {meta['device']}, `{meta['preset']}` preset{title}",
         "",
@@ -673,7 +680,7 @@ def header(meta: dict[str, Any]) -> list[str]:
         "tracking ≤ ½ of the thesis's best over all its methods, per axis; racing ≥ 19 of 20 laps per road with "
         "at most 1 collision, every seed). Tracking: the sum of |error| over one test episode from t = 0, its "
         "steps and the mean per step beside. The faithful column: the same row in the thesis's setting ("
-        + (f"`{os.path.basename(faithful)}`" if faithful else "not run yet: `python -m benchmarks.thesis --variant "
+        + (faithful or "not run yet: `python -m benchmarks.thesis --variant "
            "faithful --purpose report`") + "); each row's deviations from that setting are listed under its table.",
         "",
         *([meta["note"], ""] if meta.get("note") else []),
@@ -706,10 +713,10 @@ def report(results: list[dict], meta: dict[str, Any], stem: str, rewrite: bool =
     return provenance.write(stem, saved, text)
 
 
-def regenerate(path: str, faithful: str | None = None, results: str = RESULTS) -> str:
+def regenerate(path: str, faithful: Sequence[str] | None = None, results: str = RESULTS) -> str:
     """Rewrite the markdown of the saved report ``path`` (``.json``) with this code: figures and deviations
     from its rows (each row's ``config.json`` kept under ``<results>/runs/``), the faithful column from
-    ``faithful`` (default: the one the report names). Returns the markdown."""
+    the reports ``faithful`` (default: those the report names). Returns the markdown."""
     with open(path) as f:
         saved = json.load(f)
     stem = path[: -len(".json")]
@@ -752,9 +759,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                    help="precise: the arm rows on arm7_precise (1 cm goal; met at >= 95 %% within 2 cm and >= 90 %% "
                    "within 1 cm); faithful: every row in the thesis's setting (the thesis preset, the unicycle's "
                    "kinematic plant)")
-    p.add_argument("--faithful", default=None, metavar="JSON",
-                   help="a --variant faithful report whose rows fill the faithful column (default: "
-                   "<out>/thesis-<device>-thesis-faithful.json where it exists)")
+    p.add_argument("--faithful", nargs="+", default=None, metavar="JSON",
+                   help="--variant faithful reports whose rows fill the faithful column (default: every "
+                   "<out>/thesis-<device>-thesis-faithful*.json)")
     p.add_argument("--regenerate", nargs="+", default=None, metavar="JSON",
                    help="rewrite the markdown of these saved reports with this code (deviations, per-step errors, "
                    "the faithful column); runs nothing")
@@ -817,13 +824,14 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                              "each row's train.<algo> --seed k"), allow_dirty=args.allow_dirty,
                              run_directories=f"{args.runs}; each seed's eval.json, config.json and provenance.json "
                              "kept under runs/")  # fmt: skip
-    faithful = args.faithful or os.path.join(args.out, f"thesis-{device_label()}-thesis-faithful.json")
+    faithful = args.faithful or sorted(p for p in glob.glob(os.path.join(args.out, f"thesis-{device_label()}-thesis-"
+                                                                          "faithful*.json")) if "-smoke" not in p)
     meta = {"device": device_label(), "preset": args.preset, "variant": args.variant, "seeds": args.seeds,
             "purpose": args.purpose, "seed_ids": seed_list,
             "smoke": args.smoke, "together": args.together, "parallel": args.parallel,
             "command": "python -m benchmarks.thesis " + " ".join(argv), "jax": jax.__version__,
             "commit": prov["commit"][:12], "date": time.strftime("%Y-%m-%d %H:%M"), "provenance": prov,
-            **({"faithful": faithful} if args.variant != "faithful" and os.path.exists(faithful) else {})}  # fmt: skip
+            **({"faithful": faithful} if args.variant != "faithful" and load_faithful(faithful) else {})}  # fmt: skip
     stem = os.path.join(args.out, f"thesis-{device_label()}-{args.preset}{suffix}" + ("-smoke" if args.smoke else ""))
     if args.jobs < 1:
         raise SystemExit(f"error: --jobs {args.jobs} is out of range; allowed >= 1")

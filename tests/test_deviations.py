@@ -74,6 +74,24 @@ def test_tracking_table_has_the_faithful_column_steps_per_step_errors_and_deviat
     assert line.count(" | ") == header.count(" | ")
 
 
+def test_the_faithful_column_reads_rows_from_several_faithful_reports(tmp_path):
+    """Each faithful report holds some rows; the column takes every row of every one, the header names them all,
+    and a report written when one path could be named (a string) still reads."""
+    paths = []
+    for name, rows in (("a", ["sine-ppo", "a3c-path"]), ("b", ["sine-ddpg"])):
+        paths.append(str(tmp_path / f"thesis-cpu-thesis-faithful-{name}.json"))
+        with open(paths[-1], "w") as f:
+            json.dump({"rows": [{"row": {"name": r}, "figure": {"mean": [float(len(r))]}} for r in rows]}, f)
+    rows = thesis.load_faithful(paths)
+    assert sorted(rows) == ["a3c-path", "sine-ddpg", "sine-ppo"] and rows["sine-ddpg"]["figure"]["mean"] == [9.0]
+    assert sorted(thesis.load_faithful(paths[1])) == ["sine-ddpg"]
+    assert thesis.load_faithful([str(tmp_path / "absent.json")]) == {}
+    meta = {"device": "cpu", "preset": "cpu", "command": "c", "commit": "0", "jax": "0", "date": "d", "seeds": 1,
+            "runs_wall_s": 1.0, "wall_s": 1.0, "smoke": False, "faithful": paths}  # fmt: skip
+    text = " ".join(thesis.header(meta))
+    assert "(`thesis-cpu-thesis-faithful-a.json`, `thesis-cpu-thesis-faithful-b.json`)" in text
+
+
 def test_config_json_records_the_env_s_whole_config():
     import envs_mjx
     from train.envs import env_record
