@@ -716,13 +716,16 @@ def report(results: list[dict], meta: dict[str, Any], stem: str, rewrite: bool =
 def regenerate(path: str, faithful: Sequence[str] | None = None, results: str = RESULTS) -> str:
     """Rewrite the markdown of the saved report ``path`` (``.json``) with this code: figures and deviations
     from its rows (each row's ``config.json`` kept under ``<results>/runs/``), the faithful column from
-    the reports ``faithful`` (default: those the report names). Returns the markdown."""
+    the reports ``faithful`` (default: those the report names; given, they are named in its ``.json`` from then on).
+    Returns the markdown."""
     with open(path) as f:
         saved = json.load(f)
     stem = path[: -len(".json")]
+    if faithful:  # kept in the report's .json, so that a later rewrite (benchmarks.regenerate) reads the same
+        saved["meta"]["faithful"] = list(faithful)
+        with open(path, "w") as f:
+            json.dump(saved, f, indent=1)
     meta = {**saved["meta"], "provenance": saved["provenance"]}
-    if faithful:
-        meta["faithful"] = faithful
     for r in saved["rows"]:
         r["figure"] = row_figure(Row(**r["row"]), r["seeds"])
         if r["figure"].get("seeds_done") and r["row"]["algo"] and not meta.get("smoke"):
