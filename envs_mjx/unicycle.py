@@ -295,17 +295,17 @@ class Unicycle(tracking.TrackingEnv):
         ``[d_∥/(C_v dt), d_⊥/(C_v dt), wrap(θ_r,k+1 − θ)/(C_w dt), v_r/C_v, w_r/C_w]`` (module
         docstring); ``pose`` is the robot's ``(x, y, θ)`` at step ``k``.
         """
-        dt = self.config.dt
+        dt, (c_v, c_w) = self.config.dt, self.action_scale
         nxt = self.reference(k + 1).pos
         c, s = jnp.cos(pose[2]), jnp.sin(pose[2])
         dx, dy = nxt[0] - pose[0], nxt[1] - pose[1]
-        step = jnp.stack([c * dx + s * dy, -s * dx + c * dy]) / (self.action_scale[0] * dt)  # Eq. 3.16
-        turn = tracking.wrap_angle(nxt[2] - pose[2]) / (self.action_scale[1] * dt)
+        step = jnp.stack([c * dx + s * dy, -s * dx + c * dy]) / (c_v * dt)  # Eq. 3.16
+        turn = tracking.wrap_angle(nxt[2] - pose[2]) / (c_w * dt)
         return jnp.concatenate([step, turn[None], self.reference_action(k)])
 
     def _obs(self, pose: jax.Array, vel: jax.Array, pos_err: jax.Array, vel_err: jax.Array, k: jax.Array) -> jax.Array:
         """The 14-dim (``thesis``) or 19-dim (``extended``) observation of the module docstring."""
-        vscale = jnp.stack([self.action_scale[0], self.action_scale[0], self.action_scale[1]])
+        vscale = self.action_scale[jnp.array([0, 0, 1])]  # C_v, C_v, C_w
         parts = [
             pose[:2] / self._pos_scale,
             jnp.stack([jnp.sin(pose[2]), jnp.cos(pose[2])]),
