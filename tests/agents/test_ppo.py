@@ -7,9 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from brax.envs.base import State
 
-from envs_mjx.base import RobotEnv, sanitize_action
 from envs_mjx.config import ConfigError
 from jaxrl_robot.agents.ppo import (
     PPOConfig,
@@ -24,6 +22,7 @@ from jaxrl_robot.agents.ppo import (
     value_loss,
 )
 from jaxrl_robot.networks import apply_actor, gaussian_sample, normalize
+from tests.envs.toy import Toy, ToyConfig
 
 # ---------------------------------------------------------------------------------------------
 # losses, hand-computed
@@ -111,36 +110,28 @@ def test_config_errors_name_the_field():
 
 
 @dataclasses.dataclass(frozen=True)
-class LineConfig:
+class LineConfig(ToyConfig):
     max_steps: int = 8
     action_scale: float = 0.3
 
 
-class Line(RobotEnv):
-    """1-D point that should move to 0; episode parameter ``offset`` shifts the start."""
+class Line(Toy):
+    """1-D point that should move to 0 from a start in [-1, 1] (+ ``offset``), observing (x, |x|), rewarded for
+    progress |x_prev| - |x|; its metric is success (|x| < 0.1, which ends the episode)."""
 
     name = "line"
     Config = LineConfig
     observation_size = 2
-    action_size = 1
+    start = (-1.0, 1.0)
 
-    def default_params(self):
-        return {"offset": jnp.zeros(())}
+    def observe(self, x):
+        return jnp.concatenate([x, jnp.abs(x)])
 
-    def reset(self, rng, params=None):
-        params = self.default_params() if params is None else params
-        x = jax.random.uniform(rng, (1,), minval=-1.0, maxval=1.0) + params["offset"]
-        z = jnp.zeros(())
-        obs = jnp.concatenate([x, jnp.abs(x)])
-        return State(x, obs, z, z, {"success": z}, {"params": params})
+    def reward(self, x_prev, x):
+        return jnp.abs(x_prev[0]) - jnp.abs(x[0])
 
-    def step(self, state, action):
-        a, _ = sanitize_action(action)
-        x = state.pipeline_state + self.action_scale * a
-        success = (jnp.abs(x[0]) < 0.1).astype(jnp.float32)
-        obs = jnp.concatenate([x, jnp.abs(x)])
-        reward = jnp.abs(state.pipeline_state[0]) - jnp.abs(x[0])
-        return state.replace(pipeline_state=x, obs=obs, reward=reward, done=success, metrics={"success": success})
+    def metrics(self, done, invalid):
+        return {"success": done}
 
 
 TOY = PPOConfig(

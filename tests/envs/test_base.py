@@ -1,66 +1,15 @@
 """Wrappers, config validation and the registry, on a toy point-mass env."""
 
-import dataclasses
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from brax.envs.base import State
 
 import envs_mjx
 from envs_mjx.base import RobotEnv, map_lanes, sanitize_action, wrap_for_training
-from envs_mjx.config import ConfigError, apply_overrides, check_choice, check_range
-
-
-@dataclasses.dataclass(frozen=True)
-class ToyConfig:
-    max_steps: int = 5
-    action_scale: float = 0.5
-    goal_radius: float = 0.1
-    mode: str = "a"
-
-    def validate(self):
-        check_range("max_steps", self.max_steps, 1)
-        check_range("action_scale", self.action_scale, 0.0, lo_open=True)
-        check_choice("mode", self.mode, ("a", "b"))
-
-
-class Toy(RobotEnv):
-    """1-D point starting at a random x in [1, 2]; terminates when |x| < goal_radius."""
-
-    name = "toy"
-    Config = ToyConfig
-    observation_size = 1
-    action_size = 1
-
-    def default_params(self):
-        return {"offset": jnp.zeros(())}
-
-    def reset(self, rng, params=None):
-        params = self.default_params() if params is None else params
-        x = jax.random.uniform(rng, (1,), minval=1.0, maxval=2.0) + params["offset"]
-        zero = jnp.zeros(())
-        return State(
-            pipeline_state=x,
-            obs=x,
-            reward=zero,
-            done=zero,
-            metrics={"invalid_action": zero},
-            info={"params": params, "x0": x[0]},
-        )
-
-    def step(self, state, action):
-        a, invalid = sanitize_action(action)
-        x = state.pipeline_state + self.action_scale * a
-        done = (jnp.abs(x[0]) < self.config.goal_radius).astype(jnp.float32)
-        return state.replace(
-            pipeline_state=x,
-            obs=x,
-            reward=-jnp.abs(x[0]),
-            done=done,
-            metrics={"invalid_action": invalid},
-        )
+from envs_mjx.config import ConfigError, apply_overrides
+from tests.envs.toy import Toy
 
 
 def test_sanitize_action_handles_nan_inf_and_range():
