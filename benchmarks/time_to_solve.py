@@ -17,7 +17,9 @@ Tasks (:data:`TASKS`; the command line of each is in the results):
   the test episode) at most half the thesis's best over all its methods (:data:`benchmarks.tracking_report.GOAL`:
   x 1.30, y 0.86, θ 0.47);
 * ``her_arm7``: ``train.ddpg --env arm7`` with the sparse reward and HER future k=2 in kinematic mode (the thesis
-  table's rows), ≥ 95 % within 5 cm.
+  table's rows), ≥ 95 % within 5 cm;
+* ``sac_her_arm7``: the same with ``train.sac`` (DDPG's preset as SAC) and the temperature starting at 0.05
+  (``--init-alpha``; the default 1 weighs the entropy as much as a whole step's sparse reward), ≥ 95 % within 5 cm.
 
 Each (task, device count, seed) is a fresh process of the real command line with ``--evals K`` (evaluations
 during training, ``train/periodic.py``), so that start-up and compilation count as a user sees them. On a GPU
@@ -115,7 +117,7 @@ class Task:
         budget = []
         if options.total_steps and self.algo == "ppo":
             budget = ["--total-steps", str(options.total_steps)]
-        if options.epochs and self.algo == "ddpg":
+        if options.epochs and self.algo in ("ddpg", "sac"):
             budget = ["--epochs", str(options.epochs)]
         return [sys.executable, "-m", f"train.{self.algo}", "--env", self.env, *self.args, "--preset", options.preset,
                 *budget, "--seed", str(seed), "--devices", str(devices), "--evals", str(options.evals),
@@ -132,6 +134,8 @@ TASKS = {
                           goal=SINE_GOAL),
     "her_arm7": Task("her_arm7", "ddpg", "arm7", HER, "success_5cm", "≥ 95 % of the test goals within 5 cm",
                      fallback="success_rate"),
+    "sac_her_arm7": Task("sac_her_arm7", "sac", "arm7", (*HER, "--init-alpha", "0.05"), "success_5cm",
+                         "≥ 95 % of the test goals within 5 cm", fallback="success_rate"),
 }  # fmt: skip
 """The tasks: a command line each, with its target."""
 
@@ -408,7 +412,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--eval-episodes", type=positive, default=100, help="episodes per evaluation")
     p.add_argument("--preset", default="auto", help="the runs' --preset")
     p.add_argument("--total-steps", type=nonnegative, default=0, help="PPO tasks' --total-steps (0: the preset's)")
-    p.add_argument("--epochs", type=nonnegative, default=0, help="DDPG tasks' --epochs (0: the preset's)")
+    p.add_argument("--epochs", type=nonnegative, default=0, help="DDPG and SAC tasks' --epochs (0: the preset's)")
     p.add_argument("--target", type=_fraction, default=0.95, help="success tasks' target fraction (default 0.95)")
     p.add_argument("--stop-at-target", action="store_true",
                    help="stop each process (SIGTERM: after the chunk, checkpointed) once an evaluation met the target")
