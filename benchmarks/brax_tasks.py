@@ -297,9 +297,11 @@ def ours(env: Any, task: str, row: dict[str, float], steps: int, seeds: int, eva
         r = run_test_episodes(key, env, both, 2 * eval_episodes, episode_length)["return"]
         return jnp.mean(r[:eval_episodes]), jnp.mean(r[eval_episodes:])
 
-    def record(curves: np.ndarray, curves_mean: np.ndarray, per_chunk: np.ndarray, updates: int) -> dict[str, Any]:
-        """The side's record of ``curves`` / ``curves_mean`` ``[S, E]`` (the first E evaluations) and the
-        per-update returns and σ ``per_chunk [S, 2, U]`` after ``updates`` updates."""
+    def record(curves: np.ndarray, curves_mean: np.ndarray, per_chunk: np.ndarray, updates: int,
+               walls: list[list[float]]) -> dict[str, Any]:  # fmt: skip
+        """The side's record of ``curves`` / ``curves_mean`` ``[S, E]`` (the first E evaluations), the
+        per-update returns and σ ``per_chunk [S, 2, U]`` after ``updates`` updates, and ``walls``: per program
+        (one for ``vmap``, one per seed for ``loop``) the seconds since the start at each evaluation."""
         wall, n = time.perf_counter() - t0, curves.shape[0]
         trained = per_update * (np.arange(updates) + 1)
         return {"returns": curves[:, -1].tolist(), "eval_mode": "stochastic" if sampled else "deterministic",
@@ -310,53 +312,58 @@ def ours(env: Any, task: str, row: dict[str, float], steps: int, seeds: int, eva
                 "curves": curves.tolist(), "curves_deterministic": curves_mean.tolist(),
                 "training_curve_steps": trained.tolist(), "training_curves": per_chunk[:, 0, :updates].tolist(),
                 "training_policy_std": per_chunk[:, 1, :updates].tolist(), "overrides": dict(overrides or {}),
-                "devices": trainer_devices,
+                "devices": trainer_devices, "curve_wall_s": walls, "seeds_per_program": n if seed_map == "vmap" else 1,
                 **({"cut": True} if updates < trainer.num_updates else {})}  # fmt: skip
 
-    def report(curves: np.ndarray, curves_mean: np.ndarray, per_chunk: np.ndarray, updates: int) -> None:
+    def report(curves: np.ndarray, curves_mean: np.ndarray, per_chunk: np.ndarray, updates: int,
+               walls: list[list[float]]) -> None:  # fmt: skip
         if done is not None:
-            done(record(curves, curves_mean, per_chunk, updates))
+            done(record(curves, curves_mean, per_chunk, updates, walls))
 
     def run(init_fn: Callable, seg_fn: Callable, test_fn: Callable, keys: jax.Array, eval_keys: jax.Array,
-            on_eval: Callable) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+            on_eval: Callable) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[float]]:  # fmt: skip
         """Train from ``keys`` (one seed, or ``[S]`` with the vmapped functions) with an evaluation at every
-        point, each followed by ``on_eval(curve, curve_mean, per_chunk, updates)`` of the run so far."""
+        point, each followed by ``on_eval(curve, curve_mean, per_chunk, updates, [walls])`` of the run so far
+        (``walls``: the seconds since the start at each evaluation, returned last)."""
         state = init_fn(keys)
         # replicated over the trainer's mesh, as ``segment`` returns it: its later calls reuse the first's program
         buf = jax.device_put(jnp.full(keys.shape[:-1] + (2, trainer.num_updates), jnp.nan, jnp.float32), replicated)
-        curve, curve_mean, trained = [], [], 0
+        curve, curve_mean, trained, walls = [], [], 0, []
         for p in points:
             if p > trained:
                 state, buf = seg_fn(state, buf, trained, p - trained)
                 trained = p
             r, m = jax.block_until_ready(test_fn(state, eval_keys))
+            walls.append(time.perf_counter() - t0)
             print(f"  ours {algo}: {p * per_update:,} env steps, eval return "
                   f"{np.round(np.asarray(r), 1).tolist()}, {time.perf_counter() - t0:.0f} s", flush=True)
             curve.append(np.asarray(r))
             curve_mean.append(np.asarray(m))
-            on_eval(np.stack(curve, -1), np.stack(curve_mean, -1), np.asarray(buf), p)
-        return np.stack(curve, -1), np.stack(curve_mean, -1), np.asarray(buf)
+            on_eval(np.stack(curve, -1), np.stack(curve_mean, -1), np.asarray(buf), p, [walls])
+        return np.stack(curve, -1), np.stack(curve_mean, -1), np.asarray(buf), walls
 
     ids = list(seed_ids or range(seeds))
     keys, eval_keys = bench_seeds.keys(ids), bench_seeds.eval_keys(ids)
     t0 = time.perf_counter()
     if seed_map == "vmap":
-        curves, curves_mean, per_chunk = run(jax.jit(jax.vmap(trainer.init)),
-                                             jax.jit(jax.vmap(segment, in_axes=(0, 0, None, None))),
-                                             jax.jit(jax.vmap(test)), keys, eval_keys, report)  # fmt: skip
-    else:
-        init_one, seg_one, test_one = jax.jit(trainer.init), jax.jit(segment), jax.jit(test)
-        runs: list[tuple[np.ndarray, ...]] = []
+        *outs, walls = run(jax.jit(jax.vmap(trainer.init)), jax.jit(jax.vmap(segment, in_axes=(0, 0, None, None))),
+                           jax.jit(jax.vmap(test)), keys, eval_keys, report)  # fmt: skip
+        return record(*outs, trainer.num_updates, [walls])
+    init_one, seg_one, test_one = jax.jit(trainer.init), jax.jit(segment), jax.jit(test)
+    runs: list[tuple[Any, ...]] = []
 
-        def first_seed(c: np.ndarray, cm: np.ndarray, b: np.ndarray, p: int) -> None:
-            if not runs and p < trainer.num_updates:  # the first seed's evaluations so far
-                report(c[None], cm[None], b[None], p)
+    def first_seed(c: np.ndarray, cm: np.ndarray, b: np.ndarray, p: int, walls: list[list[float]]) -> None:
+        if not runs and p < trainer.num_updates:  # the first seed's evaluations so far
+            report(c[None], cm[None], b[None], p, walls)
 
-        for k, ek in zip(keys, eval_keys, strict=True):
-            runs.append(run(init_one, seg_one, test_one, k, ek, first_seed))
-            report(*(np.stack([r[i] for r in runs]) for i in range(3)), trainer.num_updates)
-        curves, curves_mean, per_chunk = (np.stack([r[i] for r in runs]) for i in range(3))
-    return record(curves, curves_mean, per_chunk, trainer.num_updates)
+    def stacked() -> tuple[Any, ...]:
+        """The seeds so far: curves, mean-action curves and per-update buffers stacked, then each seed's times."""
+        return (*(np.stack([r[i] for r in runs]) for i in range(3)), trainer.num_updates, [r[3] for r in runs])
+
+    for k, ek in zip(keys, eval_keys, strict=True):
+        runs.append(run(init_one, seg_one, test_one, k, ek, first_seed))
+        report(*stacked())
+    return record(*stacked())
 
 
 def theirs(env: Any, row: dict[str, float], steps: int, seeds: int, peer: str = "ppo",
@@ -398,7 +405,22 @@ def summary(runs: list[dict[str, Any]]) -> dict[str, Any]:
     return {"returns": [r["final_return"] for r in runs], "seeds": len(runs), "wall_s": float(sum(walls)),
             "wall_per_seed_s": float(np.mean(walls)), "env_steps": runs[0]["env_steps"],
             "env_steps_per_s": sum(r["env_steps"] for r in runs) / sum(walls),
-            "curve_steps": runs[0]["curve_steps"], "curves": [r["curve"] for r in runs]}  # fmt: skip
+            "curve_steps": runs[0]["curve_steps"], "curves": [r["curve"] for r in runs],
+            **({"curve_wall_s": [r["curve_wall_s"] for r in runs]} if all("curve_wall_s" in r for r in runs)
+               else {})}  # fmt: skip
+
+
+def training_wall_per_seed(side: dict[str, Any]) -> float | None:
+    """A side's training wall per seed with compilation apart: the seconds from its second evaluation to its
+    last (every program compiled by then: training and the last evaluation), scaled to all its env steps and
+    divided among the seeds of one program (``seeds_per_program``: ours vmapped, 1 for a seed alone), averaged
+    over programs. None where the record has no evaluation times (``curve_wall_s``: per program the seconds
+    since its start at each evaluation), fewer than three evaluations, or was cut short."""
+    walls, steps = side.get("curve_wall_s"), side.get("curve_steps") or []
+    if not walls or len(steps) < 3 or side.get("cut") or any(len(w) != len(steps) for w in walls):
+        return None
+    scale = side["env_steps"] / (steps[-1] - steps[1])
+    return float(np.mean([(w[-1] - w[1]) * scale for w in walls])) / side.get("seeds_per_program", 1)
 
 
 def return_ratio(ours: float, brax: float) -> float:
@@ -428,7 +450,9 @@ def to_markdown(result: dict[str, Any]) -> str:
            f"({source}). Return: each side's final evaluation on fresh episodes (ours: "
            f"{result['eval_episodes']} episodes; brax: 128) in the mode its column names — sampled actions "
            "(brax's default) or the mean action; ours also with the mean action; ± the std over seeds. Wall: "
-           "compilation included. Ours against brax's: the difference of the means with its 95 % confidence "
+           "compilation included; compile apart: from a side's second evaluation to its last, scaled to all its env "
+           "steps, per seed (`training_wall_per_seed`; — where the record has no evaluation times). "
+           "Ours against brax's: the difference of the means with its 95 % confidence "
            "interval (Welch's t) and Mann–Whitney's two-sided p, seeds per side; **ahead** / behind only where the "
            "interval excludes 0, else level (`benchmarks/stats.py`). Bold: ahead in the same mode; our wall per "
            "seed ≤ brax's."
@@ -436,9 +460,9 @@ def to_markdown(result: dict[str, Any]) -> str:
               if result.get("merged_from") else ""), "",
            "| task | env steps | brax return | our return, same mode | our return, mean action "
            "| ours − brax, same mode (95 % CI; Welch), Mann–Whitney p, seeds ours vs brax "
-           "| brax wall per seed s | our wall per seed s | brax env steps/s | our env steps/s "
-           "| ratio of the means |",
-           "|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|"]  # fmt: skip
+           "| brax wall per seed s | our wall per seed s | compile apart, brax / ours s | brax env steps/s "
+           "| our env steps/s | ratio of the means |",
+           "|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
     words = {"stochastic": "sampled", "deterministic": "mean action"}
     for t in result["tasks"]:
         b, o = t["brax"], t["ours"]
@@ -459,9 +483,10 @@ def to_markdown(result: dict[str, Any]) -> str:
         seeds_done = f" ({len(b['returns'])} of {result['brax_seeds']} seeds)" if short else ""
         seeds_done += f" (cut at {b['env_steps']:,} steps)" if b.get("cut") else ""
         mode_word = "" if np.isnan(rb) else f" ({words[mode]})"
+        apart = " / ".join("—" if w is None else f"{w:.0f}" for w in map(training_wall_per_seed, (b, o)))
         out.append(f"| {t['task']} | {o['env_steps']:,} | {rb:.1f} ± {np.std(b['returns']):.1f}{mode_word}"
                    f"{seeds_done} | {'**' + cell + '**' if won else cell} | {mean_cell} | {verdict} "
-                   f"| {b['wall_per_seed_s']:.0f} | {'**' + wall + '**' if fast else wall} "
+                   f"| {b['wall_per_seed_s']:.0f} | {'**' + wall + '**' if fast else wall} | {apart} "
                    f"| {b['env_steps_per_s']:,.0f} | {o['env_steps_per_s']:,.0f} "
                    f"| {return_ratio(ro, rb):.2f} |")  # fmt: skip
     out.append("")
@@ -678,9 +703,14 @@ def join_seeds(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
     if not (ids_a and ids_b and same and not set(ids_a) & set(ids_b)):
         return b
     wall, steps = a["wall_s"] + b["wall_s"], len(ids_a) * a["env_steps"] + len(ids_b) * b["env_steps"]
-    return {**b, "returns": a["returns"] + b["returns"], "curves": a["curves"] + b["curves"],
-            "seed_ids": ids_a + ids_b, "wall_s": wall, "wall_per_seed_s": wall / (len(ids_a) + len(ids_b)),
-            "env_steps_per_s": steps / wall}  # fmt: skip
+    joined = {**b, "returns": a["returns"] + b["returns"], "curves": a["curves"] + b["curves"],
+              "seed_ids": ids_a + ids_b, "wall_s": wall, "wall_per_seed_s": wall / (len(ids_a) + len(ids_b)),
+              "env_steps_per_s": steps / wall}  # fmt: skip
+    if "curve_wall_s" in a and "curve_wall_s" in b:
+        joined["curve_wall_s"] = a["curve_wall_s"] + b["curve_wall_s"]
+    else:
+        joined.pop("curve_wall_s", None)  # one invocation's times alone would speak for seeds it did not run
+    return joined
 
 
 def stem_of(out: str, device: str, algo: str, label: str = "") -> str:

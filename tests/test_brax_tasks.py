@@ -73,7 +73,7 @@ def test_merge_takes_each_side_from_the_invocation_that_ran_it(tmp_path):
     # both sampled: ours 990.0 ± 8.2 ≥ brax 950.0 ± 40.8 (bold: at the goal), our mean action's 1000 beside,
     # wall per seed 10 ≤ 50 (bold), ratio 990 / 950
     assert ("| inverted_pendulum | 300 | 950.0 ± 40.8 (sampled) | 990.0 ± 8.2 | 1000.0 ± 0.0 | level: +40 (95 % CI "
-            "−78 … +158; Welch), Mann–Whitney p 0.51, 3 vs 3 seeds | 50 | **10** | 6 | 30 | 1.04 |") in md
+            "−78 … +158; Welch), Mann–Whitney p 0.51, 3 vs 3 seeds | 50 | **10** | — / — | 6 | 30 | 1.04 |") in md
     assert "Invocation 3 of 3" in md and "Merged from 2 invocations" in md
     assert (out / "gpu-x-brax_tasks-figures" / "inverted_pendulum.png").exists()
     saved = json.loads((out / "gpu-x-brax_tasks.json").read_text())
@@ -97,14 +97,14 @@ def test_returns_are_compared_in_one_evaluation_mode(tmp_path):
     brax_tasks.main(["--merge", ours, brax, "--out", str(tmp_path / "old")])
     md = (tmp_path / "old" / "gpu-x-brax_tasks.md").read_text()
     assert ("| 900.0 ± 0.0 (sampled) | not measured | 1000.0 ± 0.0 | not compared (a side has no results) | 50 "
-            "| **10** | 6 | 30 | nan |") in md
+            "| **10** | — / — | 6 | 30 | nan |") in md
     # brax evaluated with its mean action (--eval-mode deterministic): compared with our mean action's returns.
     ours = _part(tmp_path, "ours2", "ours", [800.0], 10.0, eval_mode="stochastic", returns_deterministic=[950.0])
     brax = _part(tmp_path, "brax2", "brax", [900.0], 50.0, eval_mode="deterministic")
     brax_tasks.main(["--merge", ours, brax, "--out", str(tmp_path / "new")])
     md = (tmp_path / "new" / "gpu-x-brax_tasks.md").read_text()
     assert ("| 900.0 ± 0.0 (mean action) | 950.0 ± 0.0 | 950.0 ± 0.0 | not tested (1 vs 1 seeds; 2 a side needed) "
-            "| 50 | **10** | 6 | 30 | 1.06 |") in md  # one seed a side: no verdict, so no bold
+            "| 50 | **10** | — / — | 6 | 30 | 1.06 |") in md  # one seed a side: no verdict, so no bold
 
 
 def test_merge_joins_brax_s_seeds_run_by_different_invocations(tmp_path):
@@ -247,6 +247,26 @@ def test_our_side_killed_after_an_evaluation_is_merged_as_cut(monkeypatch, tmp_p
         assert "5.0 ± 0.0 (cut at 64 steps)" in f.read()
 
 
+def test_training_wall_per_seed_leaves_compilation_out_by_hand(tmp_path):
+    """From the second evaluation to the last, scaled to all env steps, per seed of a program: ours (two seeds
+    vmapped) 10 s at seconds 30 -> 40 over the second half of 100 steps = 20 s for all steps, 10 s a seed; brax's
+    two seeds 6 and 8 s over that half = 12 and 16 s, 14 s a seed. A merge keeps brax's times only where both
+    invocations have them, and the report shows both sides' figures."""
+    ours = {"curve_steps": [0, 50, 100], "env_steps": 100, "curve_wall_s": [[10.0, 30.0, 40.0]], "seeds_per_program": 2}
+    brax = {"curve_steps": [0, 50, 100], "env_steps": 100, "curve_wall_s": [[5.0, 20.0, 26.0], [5.0, 22.0, 30.0]]}
+    assert brax_tasks.training_wall_per_seed(ours) == 10.0 and brax_tasks.training_wall_per_seed(brax) == 14.0
+    assert brax_tasks.training_wall_per_seed({**ours, "cut": True}) is None  # a run cut short
+    assert brax_tasks.training_wall_per_seed({k: v for k, v in ours.items() if k != "curve_wall_s"}) is None
+    two = {"curve_steps": [0, 100], "env_steps": 100, "curve_wall_s": [[10.0, 40.0]]}
+    assert brax_tasks.training_wall_per_seed(two) is None  # the one interval holds the compilation
+    record = {"returns": [1.0], "wall_s": 30.0, "env_steps": 100, "curve_steps": [0, 50, 100], "curves": [[0, 1, 1]],
+              "eval_mode": "stochastic"}  # fmt: skip
+    a = {**record, "seed_ids": [0], "curve_wall_s": [[5.0, 20.0, 26.0]]}
+    b = {**record, "seed_ids": [1], "curve_wall_s": [[5.0, 22.0, 30.0]]}
+    assert brax_tasks.join_seeds(a, b)["curve_wall_s"] == brax["curve_wall_s"]
+    assert "curve_wall_s" not in brax_tasks.join_seeds({k: v for k, v in a.items() if k != "curve_wall_s"}, b)
+
+
 def test_too_few_evaluations_is_a_one_line_error(capsys):
     try:
         brax_tasks.main(["--tasks", "inverted_pendulum", "--evals", "1"])
@@ -335,6 +355,8 @@ def test_ours_evaluates_along_training_without_changing_it(every_program_cached)
            written[-1]["wall_s"], "wall_per_seed_s": written[-1]["wall_per_seed_s"],
            "env_steps_per_s": written[-1]["env_steps_per_s"]}  # fmt: skip
     assert [w.get("cut", False) for w in written] == [True, True, True, False]
+    walls = out["curve_wall_s"]  # one seed alone: one program's seconds at each of its 4 evaluations
+    assert len(walls) == 1 and len(walls[0]) == 4 and walls[0] == sorted(walls[0]) and out["seeds_per_program"] == 1
     assert written[1]["curve_steps"] == [0, 640] and written[1]["curves"] == [out["curves"][0][:2]]
     assert np.shape(written[1]["training_curves"]) == (1, 1) and written[1]["returns"] == [out["curves"][0][1]]
     trainer, length = brax_tasks.our_trainer("ppo", "inverted_pendulum", env, row, 1920, given)

@@ -114,8 +114,8 @@ def train_published(
 
     Returns ``final_return`` (brax's last ``eval/episode_reward``: 128 episodes of the policy's sampled
     actions, brax's default, or with ``deterministic_eval`` of its mode), ``curve_steps`` / ``curve``
-    (every evaluation), ``wall_s`` (the whole call, compilation included) and ``env_steps`` (brax's count
-    at its last evaluation).
+    (every evaluation), ``curve_wall_s`` (the seconds since the call at each evaluation), ``wall_s`` (the whole
+    call, compilation included) and ``env_steps`` (brax's count at its last evaluation).
     """
     if algo == "ppo":
         from brax.training.agents.ppo import networks
@@ -141,15 +141,16 @@ def train_published(
         extra["wrap_env_fn"] = wrap_env_fn
 
     install_shim()
-    evals: list[tuple[int, float]] = []
+    evals: list[tuple[int, float, float]] = []  # (env steps, return, seconds since the call) per evaluation
 
     def so_far() -> dict[str, Any]:
-        return {"final_return": evals[-1][1], "curve_steps": [s for s, _ in evals], "curve": [r for _, r in evals],
-                "wall_s": time.perf_counter() - t0, "env_steps": evals[-1][0]}  # fmt: skip
+        return {"final_return": evals[-1][1], "curve_steps": [e[0] for e in evals], "curve": [e[1] for e in evals],
+                "curve_wall_s": [e[2] for e in evals], "wall_s": time.perf_counter() - t0,
+                "env_steps": evals[-1][0]}  # fmt: skip
 
     def progress(step: int, metrics: dict) -> None:
         if "eval/episode_reward" in metrics:
-            evals.append((int(step), float(metrics["eval/episode_reward"])))
+            evals.append((int(step), float(metrics["eval/episode_reward"]), time.perf_counter() - t0))
             print(f"  brax {algo} seed {seed}: {int(step):,} env steps, eval return {evals[-1][1]:.1f}, "
                   f"{time.perf_counter() - t0:.0f} s", flush=True)  # fmt: skip
             if on_eval is not None:
