@@ -8,7 +8,7 @@ over their keys in one program, then runs every agent's deterministic test episo
 (``envs_mjx.tracking.rollout``).  The methods are the command lines' configurations:
 
 - ``ddpg``: ``python -m train.ddpg``'s preset (for tracking, ``cpu`` and ``fast`` already use twin
-  critics and a policy delay of 2, see ``train/presets.py``);
+  critics and a policy delay of 2, see ``train/presets/``);
 - ``td3``: ``python -m train.td3``'s (that preset with target smoothing, Eq. 6.2-6.3);
 - ``distributed``: ``python -m train.ddpg --distributed`` (thesis §4.2: synchronous workers
   averaging gradients, collecting workers with copies fetched every 5 iterations);

@@ -5,7 +5,7 @@
 Methods: ``expert`` (the scripted driver, :func:`envs_mjx.racecar.expert_action`; no training),
 ``imitation`` (the actor after the imitation stage alone: ``pretrain_steps = total_steps``),
 ``ddpg`` (imitation, then DDPG: ``train.ddpg --env racecar``) and ``td3`` (imitation, then TD3:
-``train.td3 --env racecar``), each with the preset's settings (``train/presets.py``), trained on
+``train.td3 --env racecar``), each with the preset's settings (``train/presets/``), trained on
 the training road only.  The seeds of a method run as one vmapped program.  Per road and seed:
 laps ending in success, a collision, out of the track or stalled (:data:`envs_mjx.racecar.LAP_OUTCOMES`),
 the laps whose collisions touched another car or a wall,

@@ -1,6 +1,6 @@
 """Train A2C: ``python -m train.a2c --env arm7 --reward ordinary|path`` (A3C: ``python -m train.a3c``).
 
-Defaults come from a preset (``train/presets.py``, :func:`~train.presets.a2c_preset`) chosen by
+Defaults come from a preset (``train/presets/``, :func:`~train.presets.a2c_preset`) chosen by
 ``--preset`` (``auto`` picks ``fast`` on a GPU, ``cpu`` otherwise) for ``--env``; every
 hyper-parameter flag overrides it. ``python -m train.a2c --env arm7 --help`` lists the flags
 with that preset's values.

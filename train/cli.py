@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import os
 import re
 import sys
 from collections.abc import Callable, Sequence
@@ -51,7 +50,8 @@ from train.options import (
     settings_of,
 )
 from train.presets import BRAX_PPO_TUNED, BRAX_SAC_TUNED, brax_sac_task, brax_task, resolve_preset
-from train.run import NonFiniteLossError, PeerLostError, run
+from train.progress import NonFiniteLossError, PeerLostError, exit_process
+from train.run import run
 from train.rundir import RunDirError, jsonable, load_config
 from train.seeds import resolve_seed_map
 
@@ -211,7 +211,7 @@ class AlgorithmCLI:
         """Say on stderr where the defaults come from when ``--preset auto`` chose brax's or Playground's."""
         if preset == "playground":
             fn = "brax_ppo_config" if self.name == "ppo" else "brax_sac_config"
-            print(f"preset: playground (MuJoCo Playground's {fn} for {env}; train/presets.py "
+            print(f"preset: playground (MuJoCo Playground's {fn} for {env}; train.presets "
                   f"playground_{'ppo' if self.name == 'ppo' else 'sac_ddpg'}_config)", file=sys.stderr)  # fmt: skip
         elif preset == "brax":
             if self.name == "ppo":
@@ -222,7 +222,7 @@ class AlgorithmCLI:
                 source = ("brax's SAC lanes and memory with TD3's own update settings", "BRAX_SAC, TD3_OWN")
                 if brax_sac_task(env) in BRAX_SAC_TUNED:
                     source = (f"{source[0]} and our tuned entries over them", f"{source[1]}, BRAX_SAC_TUNED")
-            print(f"preset: brax ({source[0]} for {env}; train/presets.py {source[1]})", file=sys.stderr)
+            print(f"preset: brax ({source[0]} for {env}; train.presets {source[1]})", file=sys.stderr)
 
     def check(self, args: Any) -> Any:
         """``args``, once its counts (:func:`~train.options.check_options`) and its hyper-parameters
@@ -310,21 +310,6 @@ def program_context(config: dict[str, Any]) -> dict[str, Any]:
     :data:`~train.options.RUN_ONLY_FIELDS`, so that runs with other seeds or folders share programs."""
     args = {k: v for k, v in config.get("args", {}).items() if k not in RUN_ONLY_FIELDS}
     return jsonable({**config, "args": args})
-
-
-def exit_process(code: int) -> None:
-    """End a ``python -m train.<algo>`` process with ``code`` once its output is flushed. A run of one process
-    leaves at once (``os._exit``): its files are closed by then, and the interpreter's teardown of XLA's
-    clients and compiled programs would add seconds (4–5 s on a CPU) to every command. A process of a run
-    over several exits normally, through ``jax.distributed``'s shutdown."""
-    import logging
-
-    sys.stdout.flush()
-    sys.stderr.flush()
-    if jax.process_count() == 1:
-        logging.shutdown()
-        os._exit(code)
-    sys.exit(code)
 
 
 def cli_main(cli: AlgorithmCLI, argv: Sequence[str] | None = None) -> int:

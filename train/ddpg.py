@@ -1,6 +1,6 @@
 """Train DDPG with prioritised and hindsight replay: ``python -m train.ddpg --env arm7``.
 
-Defaults come from a preset (``train/presets.py``) chosen by ``--preset`` (``auto`` picks
+Defaults come from a preset (``train/presets/``) chosen by ``--preset`` (``auto`` picks
 ``fast`` on a GPU, ``cpu`` otherwise, and ``brax`` on ``brax:hopper`` and ``brax:walker2d``) for ``--env``
 and ``--reward``; every hyper-parameter flag overrides it.  ``python -m train.ddpg --env arm7 --reward
 sparse --help`` lists the flags with that preset's values.

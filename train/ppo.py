@@ -1,6 +1,6 @@
 """Train distributed PPO with GAE: ``python -m train.ppo --env arm7``.
 
-Defaults come from a preset (``train/presets.py``) chosen by ``--preset`` (``auto`` picks
+Defaults come from a preset (``train/presets/``) chosen by ``--preset`` (``auto`` picks
 ``fast`` on a GPU, ``cpu`` otherwise) for ``--env``; every hyper-parameter flag overrides it.
 ``python -m train.ppo --env arm7 --help`` lists the flags with that preset's values.
 

@@ -53,8 +53,6 @@ import dataclasses
 import math
 import os
 import signal
-import sys
-import threading
 import time
 from typing import Any
 
@@ -70,6 +68,16 @@ from train import periodic
 from train.evaluations import RunEvaluations, compile_evaluation_async, evaluation_title, print_table
 from train.hosts import is_main_process, local_view, say, to_host
 from train.options import RunSpec, check_options
+from train.progress import (
+    STOP_SIGNALS,
+    NonFiniteLossError,
+    PeerLostError,
+    Progress,
+    process_age_s,
+    progress_info,
+    stop_on_signals,
+    use_progress_bar,
+)
 from train.rundir import jsonable, lock_run_dir, make_run_dir, restore_run, write_json
 from train.seeds import SeedProgram
 
@@ -83,101 +91,6 @@ __all__ = [
     "stop_on_signals",
     "use_progress_bar",
 ]
-
-
-class NonFiniteLossError(RuntimeError):
-    """A loss became NaN or inf; the message names the metric, the env step and the last good checkpoint."""
-
-
-class PeerLostError(RuntimeError):
-    """Another process of a run over several processes stopped responding; the message names it and
-    the run directory to resume (:func:`jaxrl_robot.parallel.lost_peer`)."""
-
-
-def use_progress_bar() -> bool:
-    """A bar only on an interactive terminal and not under CI."""
-    return sys.stdout.isatty() and not os.environ.get("CI")
-
-
-def process_age_s() -> float | None:
-    """Seconds since this process started (Linux ``/proc``; None elsewhere): imports, device start and
-    building the env and trainer, when called as a run begins."""
-    try:
-        with open("/proc/self/stat") as f:
-            start_ticks = int(f.read().rsplit(")", 1)[1].split()[19])
-        with open("/proc/uptime") as f:
-            uptime = float(f.read().split()[0])
-        return round(uptime - start_ticks / os.sysconf("SC_CLK_TCK"), 2)
-    except (OSError, ValueError, IndexError):
-        return None
-
-
-class _Progress:
-    """A rich progress bar, or nothing."""
-
-    def __init__(self, enabled: bool, total: int, done: int):
-        self.enabled = enabled
-        if not enabled:
-            return
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
-        self._bar = Progress(
-            TextColumn("[bold]train"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TextColumn("steps"),
-            TimeRemainingColumn(),
-            TextColumn("{task.fields[info]}"),
-        )
-        self._bar.start()
-        self._task = self._bar.add_task("train", total=total, completed=done, info="compiling…")
-
-    def update(self, done: int, info: str) -> None:
-        if self.enabled:
-            self._bar.update(self._task, completed=done, info=info)
-
-    def close(self) -> None:
-        if self.enabled:
-            self._bar.stop()
-
-
-def _progress_info(metrics: dict[str, float], sps: float) -> str:
-    parts = [f"{sps:,.0f} steps/s"]
-    for key, label in (("episode_return", "return"), ("success", "success"), ("pos_error", "tracking error")):
-        v = metrics.get(key)
-        if v is not None and math.isfinite(v):
-            parts.append(f"{label} {v:.3g}")
-    return "  ".join(parts)
-
-
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
-"""Signals that stop a run after its current chunk, checkpointed (:func:`stop_on_signals`)."""
-
-
-@contextlib.contextmanager
-def stop_on_signals(enabled: bool = True):
-    """While the block runs, SIGINT (Ctrl-C) and SIGTERM ask the run to stop after its current chunk;
-    yields a dict whose ``"signal"`` holds the first such signal's number (0 while none came).  A second
-    SIGINT interrupts at once.  Only in the main thread (where Python runs signal handlers) and when
-    ``enabled`` (not across several processes, which must stop together); the previous handlers come back
-    at the end of the block."""
-    got = {"signal": 0}
-    if not enabled or threading.current_thread() is not threading.main_thread():
-        yield got
-        return
-
-    def handler(signum: int, frame: Any) -> None:
-        got["signal"] = got["signal"] or signum
-        signal.signal(signal.SIGINT, signal.default_int_handler)  # a second Ctrl-C: at once
-
-    previous = {s: signal.getsignal(s) for s in STOP_SIGNALS}
-    for s in STOP_SIGNALS:
-        signal.signal(s, handler)
-    try:
-        yield got
-    finally:
-        for s, h in previous.items():
-            signal.signal(s, h)
 
 
 def run(spec: RunSpec) -> dict[str, Any]:
@@ -321,7 +234,7 @@ def _open_logs(r: _Run) -> None:
         r.loggers.append(MetricsLogger(d, keep_until_step=r.chunk * r.steps_per if r.resuming else None))
 
 
-def _plan(r: _Run) -> _Progress:
+def _plan(r: _Run) -> Progress:
     """Where the run stops, its evaluations (the final one's program compiled in the background when one is
     due before the stop, ``evals.csv``) and its progress bar."""
     spec, updates = r.spec, r.spec.trainer.num_updates
@@ -329,7 +242,7 @@ def _plan(r: _Run) -> _Progress:
     if spec.stop_after_steps > 0:
         r.stop_chunk = min(r.stop_chunk, max(r.chunk + 1, math.ceil(spec.stop_after_steps / r.steps_per)))
     show = is_main_process() and (use_progress_bar() if spec.progress is None else spec.progress)
-    bar = _Progress(show, updates * r.steps_per, r.chunk * r.steps_per)
+    bar = Progress(show, updates * r.steps_per, r.chunk * r.steps_per)
     r.eval_keys = [evaluation_key(k) for k in r.seeds]
     r.due = periodic.eval_chunks(spec.evals, updates)  # --evals: the chunks evaluated during training
     will_evaluate = r.stop_chunk >= updates and r.chunk < r.stop_chunk
@@ -344,7 +257,7 @@ def _plan(r: _Run) -> _Progress:
     return bar
 
 
-def _train(r: _Run, bar: _Progress) -> int:
+def _train(r: _Run, bar: Progress) -> int:
     """Chunks until ``stop_chunk`` (or a stop signal: after the chunk it came in), each logged, checkpointed
     every ``checkpoint_every`` and at the stop; the signal's number (0: none)."""
     r.t_loop = time.perf_counter()
@@ -363,7 +276,7 @@ def _train(r: _Run, bar: _Progress) -> int:
     return interrupt["signal"]
 
 
-def _chunk(r: _Run, bar: _Progress) -> None:
+def _chunk(r: _Run, bar: Progress) -> None:
     """One chunk: its losses checked, its metrics logged, the bar moved, an evaluation if one is due."""
     t_chunk = time.perf_counter()
     new_state, metrics = r.program.update(r.state)
@@ -376,7 +289,7 @@ def _chunk(r: _Run, bar: _Progress) -> None:
     sps = r.steps_per * len(r.seeds) / max(dt, 1e-9)
     for logger, m in zip(r.loggers, per_seed, strict=False):  # no loggers off process 0
         logger.write(r.chunk * r.steps_per, {**m, "steps_per_s": sps})
-    bar.update(r.chunk * r.steps_per, _progress_info(per_seed[0], sps))
+    bar.update(r.chunk * r.steps_per, progress_info(per_seed[0], sps))
     if r.chunk in r.due and r.chunk < r.spec.trainer.num_updates:  # before its checkpoint (the final one: later)
         _evaluate_during(r)
 

@@ -1,6 +1,6 @@
 """Train SAC (soft actor-critic, ``jaxrl_robot.agents.sac``): ``python -m train.sac --env brax:hopper``.
 
-SAC is a member of the off-policy family: its presets per env are DDPG's (``train/presets.py``,
+SAC is a member of the off-policy family: its presets per env are DDPG's (``train/presets/``,
 :func:`train.ddpg.preset`, converted field by field to a :class:`~jaxrl_robot.agents.sac.SACConfig`; the
 exploration-noise fields go unused, since the policy explores by sampling itself), and PER, HER,
 ``--random-start``, ``--pretrain imitation``, ``--distributed``, the run directory, evaluation, figures and

@@ -4,7 +4,7 @@ TD3 (``jaxrl_robot.agents.td3``) is DDPG's trainer with three of its options set
 regressed on the clipped double-Q target ``y = r + γ (1 − d) min(Q1'(s', a'), Q2'(s', a'))``
 (Eq. 6.2), the target action smoothed as ``a' = clip(μ'(s') + clip(ξ, −0.5, 0.5), −1, 1)`` with
 ``ξ ~ N(0, 0.2²)`` (Eq. 6.3), and the actor (which maximises Q1) and all target networks updated
-once every 2 critic updates. Everything else — presets per env (``train/presets.py``, DDPG's),
+once every 2 critic updates. Everything else — presets per env (``train/presets/``, DDPG's),
 PER, HER, the run directory, evaluation, figures and ``--resume`` — is ``python -m train.ddpg``'s;
 every flag of that command works here, so ``--policy-delay 3`` or ``--target-noise 0.1`` change
 the TD3 settings.

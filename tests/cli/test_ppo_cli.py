@@ -314,7 +314,7 @@ def test_brax_preset_converts_brax_settings_and_auto_picks_it(capsys):
     # reacher's tuned fields over its row (Adam at 1e-3 annealed to 0, gradients clipped at norm 1),
     # winning over the row's learning rate; tuned=False gives the row alone (brax's 3e-4, constant)
     re = ppo_cli.parse(["--env", "brax:reacher"]).ppo
-    assert "settings with our tuned fields over them for brax:reacher; train/presets.py BRAX_PPO, BRAX_PPO_TUNED)" \
+    assert "settings with our tuned fields over them for brax:reacher; train.presets BRAX_PPO, BRAX_PPO_TUNED)" \
         in capsys.readouterr().err
     assert (re.actor_lr, re.critic_lr, re.lr_schedule, re.max_grad_norm) == (1e-3, 1e-3, "linear", 1.0)
     assert (re.gamma, re.entropy_coef, re.advantage_segment) == (0.95, 1e-3, 50)  # the row's and brax's update
@@ -345,7 +345,7 @@ def test_td3_and_ddpg_brax_preset_is_the_sac_row_with_td3_s_own_settings_and_aut
     hop = td3_cli.parse(["--env", "brax:hopper"])
     err = capsys.readouterr().err
     assert hop.preset == "brax" and "preset: brax (brax's SAC lanes and memory with TD3's own update settings " \
-        "and our tuned entries over them for brax:hopper; train/presets.py BRAX_SAC, TD3_OWN, BRAX_SAC_TUNED)" in err
+        "and our tuned entries over them for brax:hopper; train.presets BRAX_SAC, TD3_OWN, BRAX_SAC_TUNED)" in err
     c = hop.td3
     assert (c.num_envs, c.unroll_length, c.updates_per_iteration, c.batch_size) == (128, 1, 256, 256)
     assert presets.brax_sac_ddpg_config("hopper", tuned=False).updates_per_iteration == 128

@@ -220,6 +220,7 @@ def test_presets_and_the_benchmark_convert_playground_s_own_rows_by_hand():
     The SAC row under TD3's own settings: 128 lanes, one update of 256 per lane step, the row's memory."""
     from benchmarks import brax_tasks
     from train import presets
+    from train.presets import on_policy as presets_on_policy
 
     row = presets.playground_row("playground:CartpoleBalance")
     c = presets.playground_ppo_config("playground:CartpoleBalance", 1)
@@ -227,7 +228,7 @@ def test_presets_and_the_benchmark_convert_playground_s_own_rows_by_hand():
     assert (c.num_envs, c.unroll_length, c.minibatch_size, c.actor_updates) == (2048, 480, 30720, 512)
     assert (c.advantage_segment, c.total_steps, c.gamma, c.reward_scale) == (30, 60_000_000, 0.995, 10)
     assert (c.actor_lr, c.entropy_coef, c.episode_length, c.tanh_actions) == (1e-3, 1e-2, 1000, True)
-    assert presets._ppo_base_preset("auto", "playground:CartpoleBalance", 250, 1).episode_length == 250
+    assert presets_on_policy._ppo_base_preset("auto", "playground:CartpoleBalance", 250, 1).episode_length == 250
     assert brax_tasks.brax_ppo_steps(row, 60_000_000) == 9 * 10 * 983_040
     small = brax_tasks.brax_row("playground:CartpoleBalance", 16)  # the CPU check's 16 envs: batch 8
     assert brax_tasks.brax_ppo_steps(small, 20_000, 2) == 10 * 8 * 32 * 30

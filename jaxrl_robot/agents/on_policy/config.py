@@ -21,7 +21,7 @@ LR_SCHEDULES = ("constant", "linear")
 class ActorCriticConfig:
     """Hyper-parameters shared by the actor-critic agents (defaults: the thesis's arm settings, except
     that a per-action field such as ``sigma`` defaults to one value, broadcast to any env's action size;
-    the arm's per-action values are set by its presets, ``train/presets.py``).
+    the arm's per-action values are set by its presets, ``train/presets/``).
 
     ``num_envs`` lanes (the K workers) each collect ``unroll_length`` (N) steps per iteration;
     the actor is Gaussian (fixed or learned σ, optional batch-norm), the critic a plain MLP,
