@@ -22,7 +22,7 @@ edited files, ``diff_sha1`` and the diff itself (``git diff HEAD`` and the new f
 :data:`MAX_DIFF_CHARS`).
 
 ``python -m benchmarks.provenance check`` prints what a run would record now; ``audit`` lists the results
-files whose provenance does not verify (:func:`audit`).
+files whose provenance does not verify (:func:`benchmarks.provenance_audit.audit`).
 
 The run directories behind a results file (their small ``eval.json`` and ``config.json``) are kept
 under ``<results>/runs/<results file>/`` by :func:`keep_run`.
@@ -31,7 +31,6 @@ under ``<results>/runs/<results file>/`` by :func:`keep_run`.
 from __future__ import annotations
 
 import argparse
-import glob
 import hashlib
 import json
 import os
@@ -43,6 +42,15 @@ import sys
 import time
 from collections.abc import Sequence
 from typing import Any
+
+from benchmarks.provenance_words import (  # noqa: F401  (the benchmarks call these as provenance.*)
+    RECOVERED_FIELDS,
+    device_words,
+    markdown,
+    recovered_markdown,
+    seed_words,
+    tree_words,
+)
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 RUN_FILES = ("eval.json", "config.json", "provenance.json")
@@ -273,86 +281,6 @@ def stamp(prov: dict[str, Any]) -> dict[str, Any]:
     return prov
 
 
-def tree_words(prov: dict[str, Any]) -> str:
-    """``clean tree``, ``DIRTY tree: uncommitted edits in …`` or ``tree state unknown (…)``."""
-    if prov.get("dirty") is None:
-        return f"tree state unknown ({prov.get('commit_source', 'not recorded')})"
-    if not prov["dirty"]:
-        return "clean tree"
-    listed = prov.get("dirty_files", [])
-    more = prov.get("dirty_count", len(listed)) - 8
-    files = ", ".join(line[3:] for line in listed[:8]) + (f" and {more} more" if more > 0 else "")
-    kept = "; the diff is in the .json" if prov.get("diff") else ""
-    return (f"**DIRTY tree: uncommitted edits** in {files} (diff sha1 {prov.get('diff_sha1')}{kept}): the figures "
-            "come from code that this commit alone does not hold")  # fmt: skip
-
-
-def device_words(dev: Any) -> str:
-    if not isinstance(dev, dict):
-        return str(dev)
-    count = f"{dev['count']} x " if dev.get("count", 1) != 1 else ""
-    cores = f", {dev['cpu_cores']} CPU cores" if dev.get("cpu_cores") else ""
-    return f"{count}{dev['name']} ({dev['platform']}{cores})"
-
-
-def seed_words(entry: Any) -> str:
-    """A record's ``seeds`` in words (:func:`benchmarks.seeds.words`)."""
-    from benchmarks.seeds import words
-
-    return words(entry)
-
-
-def markdown(*provs: dict[str, Any]) -> str:
-    """The ``## Provenance`` section of a results file (one list per record, oldest first)."""
-    lines = ["## Provenance", ""]
-    for i, p in enumerate(provs):
-        if len(provs) > 1:
-            lines += [f"Invocation {i + 1} of {len(provs)}:", ""]
-        seeds = p.get("seeds")
-        lines += [
-            f"- Command: `{p['command']}`",
-            f"- Commit: {p['commit']} ({tree_words(p)})",
-            *([f"- Tree: code SHA-1 {p['tree_sha1']}, read from {p['commit_source']}"] if p.get("tree_sha1") else []),
-            f"- Device: {device_words(p['device'])}; host {p.get('host', '?')}",
-            f"- Seeds: {'none (not a seeded experiment)' if seeds is None else seed_words(seeds)}",
-            f"- Wall time: {p['wall_s']:.0f} s from the command's start to this write (started {p['started']}, "
-            f"written {p.get('written', '?')})",
-            f"- jax {p.get('jax', '?')}, Python {p.get('python', '?')}",
-        ]
-        lines += [f"- Run directories: {p['run_directories']}"] if p.get("run_directories") else []
-        lines += [f"- Note: {p['note']}"] if p.get("note") else []
-        lines.append("")
-    return "\n".join(lines)
-
-
-RECOVERED_FIELDS = (
-    ("results_commits", "Results committed in"),
-    ("command", "Command"),
-    ("code_commit", "Code commit"),
-    ("device", "Device"),
-    ("seeds", "Seeds"),
-    ("wall_time", "Wall time"),
-    ("selection", "Selection"),
-    ("run_directories", "Run directories"),
-    ("not_recorded", "Not recorded"),
-)
-"""The fields of a ``provenance_recovered`` record and their labels, in the order written."""
-
-
-def recovered_markdown(rec: dict[str, Any]) -> str:
-    """The ``## Provenance (recovered from git history)`` section of a results file that was written
-    before its benchmark recorded provenance: what the file and its commits' messages say, and what
-    they do not (``not_recorded``)."""
-    lines = ["## Provenance (recovered from git history)", "", rec.get("intro", ""), ""]
-    for key, label in RECOVERED_FIELDS:
-        value = rec.get(key)
-        if isinstance(value, list) and len(value) > 1:
-            lines += [f"- {label}:", *(f"  - {v}" for v in value)]
-        elif value:
-            lines.append(f"- {label}: " + (value[0] if isinstance(value, list) else str(value)))
-    return "\n".join(lines) + "\n"
-
-
 def _plain(x: Any) -> Any:
     """What ``json`` cannot write as it is: numbers (numpy scalars) as floats, anything else as text."""
     try:
@@ -418,80 +346,6 @@ def rewrite_markdown(stem: str, result: dict[str, Any], text: str, earlier: Sequ
     return md
 
 
-def record_problem(p: dict[str, Any]) -> str | None:
-    """Why a provenance record does not verify the code it ran (None: a commit read by the tool from a clean
-    tree)."""
-    if not isinstance(p, dict) or not p.get("commit") or p["commit"] == "unknown":
-        return "names no commit"
-    if "--commit" in str(p.get("commit_source", "")):
-        return "commit typed by hand (--commit); the tree it ran from was not checked"
-    if p.get("dirty") is True:
-        return "ran from a tree with uncommitted edits"
-    if p.get("dirty") is not False:
-        return "the tree's state was not recorded"
-    return None
-
-
-def _in_history(commit: str, cwd: str) -> bool:
-    return _git("cat-file", "-e", f"{commit}^{{commit}}", cwd=cwd) is not None
-
-
-def audit_result(result: dict[str, Any], history: bool = False, cwd: str | None = None) -> list[str]:
-    """The reasons a results file's figures are not verified by its provenance ([] where they are):
-    no record or a record that does not verify (:func:`record_problem`), merged invocations that do not,
-    thesis rows taken from earlier invocations with no record of their own, and with ``history`` a commit
-    that this repository does not hold."""
-    if "invocations" in result and "provenance" not in result:  # a file of several reports, each with its own
-        parts = list(result["invocations"].values())
-        records = [part.get("provenance") for part in parts]
-        rows = [row for part in parts for row in part.get("rows", [])]
-    else:
-        records, rows = [result.get("provenance")], result.get("rows", [])
-        records += list(result.get("sources", []))
-    if records == [None]:
-        return ["written before the benchmark recorded its provenance (commit and tree from git history, "
-                "where at all)" if "provenance_recovered" in result else "names no commit"]  # fmt: skip
-    reasons = []
-    problems = [problem for problem in map(record_problem, records) if problem]
-    if problems:
-        what = "; ".join(dict.fromkeys(problems))
-        reasons.append(what if len(records) == 1 else f"{len(problems)} of its {len(records)} invocations: {what}")
-    rows = [r for r in rows if isinstance(r, dict)]
-    earlier = [r for r in rows if any(isinstance(s, dict) and s.get("skipped") for s in r.get("seeds", []))
-               and (r.get("provenance") or {}).get("missing", 1)]  # fmt: skip
-    if earlier:
-        reasons.append(f"{len(earlier)} of its {len(rows)} rows were run by an earlier invocation whose commit the "
-                       "file does not record")  # fmt: skip
-    unclean = [r for r in rows if r.get("provenance") and not r["provenance"].get("clean", True)]
-    if unclean:
-        reasons.append(f"{len(unclean)} of its {len(rows)} rows ran from a tree with uncommitted edits")
-    if history:
-        missing = [r["commit"] for r in records if isinstance(r, dict) and r.get("commit") not in (None, "", "unknown")
-                   and not _in_history(r["commit"], cwd or REPO)]  # fmt: skip
-        if missing:
-            reasons.append(f"commit {', '.join(dict.fromkeys(missing))} is not in this repository's history")
-    return reasons
-
-
-def audit(results: str, history: bool = False) -> dict[str, list[str]]:
-    """``{results file name without .json: reasons}`` for every ``.json`` in ``results`` that does not verify
-    (:func:`audit_result`); a file that does not read as JSON is listed as such."""
-    out = {}
-    for path in sorted(glob.glob(os.path.join(results, "*.json"))):
-        if os.path.basename(path) in NOT_RESULTS:
-            continue
-        try:
-            with open(path) as f:
-                result = json.load(f)
-        except ValueError as e:
-            out[os.path.basename(path)[:-5]] = [f"not readable as JSON ({e})"]
-            continue
-        reasons = audit_result(result, history) if isinstance(result, dict) else ["not a results record"]
-        if reasons:
-            out[os.path.basename(path)[:-5]] = reasons
-    return out
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m benchmarks.provenance stamp|check|audit``."""
     p = argparse.ArgumentParser(prog="python -m benchmarks.provenance", description=__doc__.split("\n")[0])
@@ -512,6 +366,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(s["stamp_note"])
         print("a run would be refused without --allow-dirty" if s["dirty"] is not False else "a run would go ahead")
     else:
+        from benchmarks.provenance_audit import audit  # it reads this module's settings
+
         for name, reasons in audit(args.results, args.history).items():
             print(f"{name}: {'; '.join(reasons)}")
     return 0

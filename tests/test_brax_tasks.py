@@ -247,26 +247,6 @@ def test_our_side_killed_after_an_evaluation_is_merged_as_cut(monkeypatch, tmp_p
         assert "5.0 ± 0.0 (cut at 64 steps)" in f.read()
 
 
-def test_training_wall_per_seed_leaves_compilation_out_by_hand(tmp_path):
-    """From the second evaluation to the last, scaled to all env steps, per seed of a program: ours (two seeds
-    vmapped) 10 s at seconds 30 -> 40 over the second half of 100 steps = 20 s for all steps, 10 s a seed; brax's
-    two seeds 6 and 8 s over that half = 12 and 16 s, 14 s a seed. A merge keeps brax's times only where both
-    invocations have them, and the report shows both sides' figures."""
-    ours = {"curve_steps": [0, 50, 100], "env_steps": 100, "curve_wall_s": [[10.0, 30.0, 40.0]], "seeds_per_program": 2}
-    brax = {"curve_steps": [0, 50, 100], "env_steps": 100, "curve_wall_s": [[5.0, 20.0, 26.0], [5.0, 22.0, 30.0]]}
-    assert brax_tasks.training_wall_per_seed(ours) == 10.0 and brax_tasks.training_wall_per_seed(brax) == 14.0
-    assert brax_tasks.training_wall_per_seed({**ours, "cut": True}) is None  # a run cut short
-    assert brax_tasks.training_wall_per_seed({k: v for k, v in ours.items() if k != "curve_wall_s"}) is None
-    two = {"curve_steps": [0, 100], "env_steps": 100, "curve_wall_s": [[10.0, 40.0]]}
-    assert brax_tasks.training_wall_per_seed(two) is None  # the one interval holds the compilation
-    record = {"returns": [1.0], "wall_s": 30.0, "env_steps": 100, "curve_steps": [0, 50, 100], "curves": [[0, 1, 1]],
-              "eval_mode": "stochastic"}  # fmt: skip
-    a = {**record, "seed_ids": [0], "curve_wall_s": [[5.0, 20.0, 26.0]]}
-    b = {**record, "seed_ids": [1], "curve_wall_s": [[5.0, 22.0, 30.0]]}
-    assert brax_tasks.join_seeds(a, b)["curve_wall_s"] == brax["curve_wall_s"]
-    assert "curve_wall_s" not in brax_tasks.join_seeds({k: v for k, v in a.items() if k != "curve_wall_s"}, b)
-
-
 def test_too_few_evaluations_is_a_one_line_error(capsys):
     try:
         brax_tasks.main(["--tasks", "inverted_pendulum", "--evals", "1"])
@@ -316,19 +296,6 @@ def test_action_wrappers_hand_the_env_the_clipped_or_squashed_action_and_brax_s_
     squash = TanhActionWrapper(Echo())
     out = squash.step(squash.reset(None), jnp.array([-3.0, 0.25, 0.0]))
     np.testing.assert_allclose(out.obs, [-0.99505475, 0.24491866, 0.0], rtol=1e-6)  # tanh by hand
-
-
-def test_the_return_ratio_is_above_one_where_ours_is_ahead_for_rewards_and_costs():
-    assert brax_tasks.return_ratio(1800.0, 1200.0) == 1.5 and brax_tasks.return_ratio(600.0, 1200.0) == 0.5
-    assert brax_tasks.return_ratio(-20.0, -25.0) == 1.25 and brax_tasks.return_ratio(-25.0, -20.0) == 0.8
-    assert np.isnan(brax_tasks.return_ratio(5.0, 0.0))
-
-
-def test_eval_points_spread_brax_s_ten_evaluations_over_the_updates():
-    assert brax_tasks.eval_points(18) == [0, 2, 4, 6, 8, 10, 12, 14, 16, 18]
-    assert brax_tasks.eval_points(4) == [0, 1, 2, 3, 4]  # fewer updates than evaluations: each update once
-    assert brax_tasks.eval_points(27) == [0, 3, 6, 9, 12, 15, 18, 21, 24, 27]
-    assert brax_tasks.eval_points(18, 3) == [0, 9, 18] and brax_tasks.eval_points(18, 2) == [0, 18]  # --evals
 
 
 @pytest.fixture

@@ -15,6 +15,7 @@ import jax
 import pytest
 
 from benchmarks import provenance, tracking_report
+from benchmarks.provenance_audit import audit_result
 
 
 def _git(repo, *args):
@@ -112,16 +113,16 @@ def test_audit_lists_results_whose_provenance_does_not_verify():
     clean = {"commit": "a" * 40, "dirty": False, "commit_source": "git rev-parse HEAD"}
     typed = {"commit": "abc1234", "dirty": None,
              "commit_source": "given with --commit; the tree it ran from was not checked"}
-    assert provenance.audit_result({"provenance": clean}) == []
-    assert provenance.audit_result({"provenance": typed}) == ["commit typed by hand (--commit); the tree it ran from "
+    assert audit_result({"provenance": clean}) == []
+    assert audit_result({"provenance": typed}) == ["commit typed by hand (--commit); the tree it ran from "
                                                               "was not checked"]  # fmt: skip
     merged = {"provenance": clean, "sources": [clean, {**clean, "dirty": True}]}
-    assert provenance.audit_result(merged) == ["1 of its 3 invocations: ran from a tree with uncommitted edits"]
-    assert provenance.audit_result({"provenance_recovered": {}})[0].startswith("written before the benchmark")
-    assert provenance.audit_result({"commit": "d5d2c30"}) == ["names no commit"]
+    assert audit_result(merged) == ["1 of its 3 invocations: ran from a tree with uncommitted edits"]
+    assert audit_result({"provenance_recovered": {}})[0].startswith("written before the benchmark")
+    assert audit_result({"commit": "d5d2c30"}) == ["names no commit"]
     recorded = {"seeds": [{"skipped": True}], "provenance": {"missing": 0, "clean": True}}
     earlier = {"provenance": clean, "rows": [{"seeds": [{"skipped": True}]}, {"seeds": [{}]}, recorded]}
-    assert provenance.audit_result(earlier) == ["1 of its 3 rows were run by an earlier invocation whose commit the "
+    assert audit_result(earlier) == ["1 of its 3 rows were run by an earlier invocation whose commit the "
                                                 "file does not record"]  # fmt: skip
 
 

@@ -19,7 +19,7 @@ from decimal import ROUND_HALF_UP, Decimal
 
 import pytest
 
-from benchmarks import provenance
+from benchmarks import provenance_audit
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 RESULTS = os.path.join(ROOT, "benchmarks", "results")
@@ -112,4 +112,4 @@ def test_the_unverified_files_listed_are_those_the_audit_finds():
     text = _doc(DOCS[1])
     section = text.split("## Unverified files", 1)[1].split("\n## ", 1)[0]
     listed = {os.path.splitext(m)[0] for m in re.findall(r"^\| `([^`]+)` \|", section, re.M)}
-    assert listed == set(provenance.audit(RESULTS))
+    assert listed == set(provenance_audit.audit(RESULTS))

@@ -8,6 +8,7 @@ import os
 import pytest
 
 from benchmarks import time_to_solve as tts
+from benchmarks.time_to_solve_report import spread
 from benchmarks.tracking_report import GOAL
 
 TINY = ["--episode-length", "16", "--num-envs", "4", "--unroll-length", "8", "--minibatch-size", "16",
@@ -71,8 +72,8 @@ def test_criteria_and_spread_by_hand():
         tts.TASKS["arm7_precise"].value({"success_rate": "1.0"})
     rows = [{"success_5cm": v} for v in ("0.5", "0.97", "0.99")]
     assert tts.first_met(arm, rows, 0.95) is rows[1] and tts.first_met(arm, rows, 1.0) is None
-    assert tts.spread([1.0, None, 2.0, 3.0]) == {"n": 3, "mean": 2.0, "std": 1.0, "values": [1.0, 2.0, 3.0]}
-    assert tts.spread([None])["mean"] is None and tts.spread([4.0])["std"] == 0.0
+    assert spread([1.0, None, 2.0, 3.0]) == {"n": 3, "mean": 2.0, "std": 1.0, "values": [1.0, 2.0, 3.0]}
+    assert spread([None])["mean"] is None and spread([4.0])["std"] == 0.0
 
 
 def test_bad_arguments_are_one_line_errors(capsys):

@@ -25,7 +25,6 @@ from jaxrl_robot.agents.off_policy.config import with_env_target_clip
 from jaxrl_robot.checkpoint import Checkpointer
 from jaxrl_robot.evaluation import run_test_episodes, summarize_episodes
 from tests.replay.toy_goal_env import ToyGoalEnv
-from train.presets import ddpg_preset
 
 
 def _linear_params(w, b):
@@ -377,28 +376,6 @@ def test_random_start_acts_uniformly_until_learning_starts():
     assert later.std() < 0.05  # the untrained actor's output is near-constant (last layer ±3e-3)
     with pytest.raises(ConfigError, match="random_start=True .* set learning_starts >= 1"):
         _tiny(random_start=True).validate()
-
-
-def test_tracking_presets_thesis_keeps_table_3_3_and_cpu_uses_the_measured_options():
-    thesis = ddpg_preset("thesis", "unicycle", 314)
-    table_3_3 = (thesis.gamma, thesis.batch_size, thesis.buffer_size, thesis.tau, thesis.noise, thesis.per)
-    assert table_3_3 == (0.9, 32, 50_000, 0.01, "ou", True)
-    assert not thesis.twin_critics and thesis.policy_delay == 1 and thesis.reward_shift == 0.0
-    assert thesis.noise_end_factor == 1.0 and thesis.termination_metric == ""
-    for env in ("unicycle", "scara"):
-        for name in ("cpu", "fast"):
-            cfg = ddpg_preset(name, env, 314).validate()
-            assert cfg.twin_critics and cfg.policy_delay == 2 and cfg.termination_metric == "early_termination"
-            # the cost form r − 1 needs early termination valued at the worst return −1/(1 − γ)
-            np.testing.assert_allclose(cfg.failure_value, cfg.reward_shift / (1.0 - cfg.gamma))
-
-
-def test_arm_presets_bound_the_critic_targets_of_both_rewards():
-    """sparse: the fixed [−10, 0]; shaped: the env's return range (resolved when the trainer is built)."""
-    for name in ("thesis", "cpu", "fast"):
-        sparse, shaped = (ddpg_preset(name, "arm7", 100, reward) for reward in ("sparse", "shaped"))
-        assert sparse.target_clip == (-10.0, 0.0) and not sparse.clip_targets_to_env
-        assert shaped.target_clip == () and shaped.clip_targets_to_env
 
 
 def test_lr_end_factor_decays_adam_step_linearly_by_hand():

@@ -385,17 +385,3 @@ def test_brax_sac_settings_convert_to_ddpg_by_hand():
         presets.brax_sac_ddpg_config("halfcheetah")
 
 
-def test_unicycle_fast_preset_a_p_per_method_and_trajectory_and_the_users_on_top():
-    """Under ``fast`` the unicycle trains at a_p = 300, but two-stage training and the LSTM at 1000 on
-    the sine (``train.presets.UNICYCLE_A_P_FAST``); ``--env-config`` still wins."""
-    import tyro
-
-    def settings(*extra):
-        return ppo_cli.env_settings(tyro.cli(ppo_cli.Args, args=["--env", "unicycle", "--preset", "fast", *extra]))
-
-    ellipse = ("--env-config", "trajectory=ellipse")
-    assert settings("--pretrain", "action-search") == settings("--policy", "lstm") == {"a_p": 1000.0}
-    assert settings() == {"a_p": 300.0}
-    assert settings("--policy", "lstm", *ellipse) == settings("--pretrain", "action-search", *ellipse)
-    assert settings("--policy", "lstm", *ellipse) == {"a_p": 300.0, "trajectory": "ellipse"}
-    assert settings("--pretrain", "action-search", "--env-config", "a_p=5") == {"a_p": 5}
