@@ -158,12 +158,13 @@ def table_markdown(table: str, results: list[dict], fig_dir: str, rel: str,
         row, fig = r["row"], r["figure"]
         kept = faithful.get(row["name"], {}).get("figure")
         cmd = f"`python -m train.{row['algo']} {' '.join(r['command'])}`" if row["algo"] else ""
+        shown = " / ".join(f"{v:g}" for v in row["thesis"]) if kind == "tracking" and row["thesis"] else row["thesis"]
         if row["missing"]:
-            lines.append(f"| {row['label']} | {row['thesis']} | **missing** | {row['missing']} |")
+            lines.append(f"| {row['label']} | {shown} | **missing** | {row['missing']} |")
             continue
         if not fig.get("seeds_done"):
-            errors = "; ".join(s.get("error", "") for s in r["seeds"])
-            lines.append(f"| {row['label']} | {row['thesis']} | **not run** ({errors or 'no seed finished'}) |"
+            errors = "; ".join(dict.fromkeys(s.get("error", "") for s in r["seeds"]))  # one line for a row's run
+            lines.append(f"| {row['label']} | {shown} | **not run** ({errors or 'no seed finished'}) |"
                          + " |" * (columns - 3))  # fmt: skip
             continue
         per_seed = "; ".join(" / ".join(f"{v:.2f}" if kind == "tracking" else f"{v:.0f}" for v in s)
