@@ -81,26 +81,24 @@ import jax
 from benchmarks import provenance
 from benchmarks import seeds as bench_seeds
 from benchmarks.arguments import at_least, nonnegative, positive
-from benchmarks.brax_tasks_merge import join_seeds, merge, missing, stem_of, write  # noqa: F401  (read here by the tests)
-from benchmarks.brax_tasks_report import (  # noqa: F401  (the tests and other benchmarks read these here)
+from benchmarks.brax_tasks_merge import (
+    merge,
+    missing,  # noqa: F401  (read here by the tests)
+    stem_of,
+    write,
+)
+from benchmarks.brax_tasks_report import (
     ALGOS,
     EVAL_MODES,
     PLAYGROUND,
     default_eval_mode,
-    eval_mode,
-    figure,
     is_playground,
-    our_returns,
-    return_ratio,
-    to_markdown,
-    training_wall_per_seed,
+    to_markdown,  # noqa: F401  (read here by the tests)
 )
-from benchmarks.brax_tasks_sides import (  # noqa: F401  (read here by the tests; main calls ours / theirs from here)
-    eval_points,
+from benchmarks.brax_tasks_sides import (  # noqa: F401  (read here by the tests)
     our_config,
     our_trainer,
     ours,
-    summary,
     theirs,
     update_chunk,
 )
