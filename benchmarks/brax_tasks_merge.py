@@ -37,7 +37,9 @@ def write(stem: str, result: dict[str, Any], earlier: list[dict[str, Any]] = (),
 def join_seeds(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
     """brax's record of two invocations: the seeds of both when they are different seeds of one setting
     (``seed_ids`` disjoint, same evaluation mode and env steps), else ``b`` (the later file wins). A record
-    without ``seed_ids`` ran seeds 0, 1, … (the only seeds before ``--brax-first-seed``)."""
+    without ``seed_ids`` ran seeds 0, 1, … (the only seeds before ``--brax-first-seed``). Evaluation times
+    (``curve_wall_s``) stay with the seeds that have them: a seed of a file that kept none has None there, and
+    the walls with compilation apart are over the timed seeds alone (:func:`timed_seeds` says how many)."""
     ids_a, ids_b = (r.get("seed_ids") or list(range(len(r["returns"]))) for r in (a, b))
     same = eval_mode(a, "brax") == eval_mode(b, "brax") and all(a[k] == b[k] for k in ("env_steps", "curve_steps"))
     if not (ids_a and ids_b and same and not set(ids_a) & set(ids_b)):
@@ -46,10 +48,9 @@ def join_seeds(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
     joined = {**b, "returns": a["returns"] + b["returns"], "curves": a["curves"] + b["curves"],
               "seed_ids": ids_a + ids_b, "wall_s": wall, "wall_per_seed_s": wall / (len(ids_a) + len(ids_b)),
               "env_steps_per_s": steps / wall}  # fmt: skip
-    if "curve_wall_s" in a and "curve_wall_s" in b:
-        joined["curve_wall_s"] = a["curve_wall_s"] + b["curve_wall_s"]
-    else:
-        joined.pop("curve_wall_s", None)  # one invocation's times alone would speak for seeds it did not run
+    if "curve_wall_s" in a or "curve_wall_s" in b:  # one program a seed: None where a seed's times were not kept
+        joined["curve_wall_s"] = [*(a.get("curve_wall_s") or [None] * len(ids_a)),
+                                  *(b.get("curve_wall_s") or [None] * len(ids_b))]  # fmt: skip
     return joined
 
 

@@ -53,13 +53,32 @@ def training_wall_per_seed(side: dict[str, Any]) -> float | None:
     """A side's training wall per seed with compilation apart: the seconds from its second evaluation to its
     last (every program compiled by then: training and the last evaluation), scaled to all its env steps and
     divided among the seeds of one program (``seeds_per_program``: ours vmapped, 1 for a seed alone), averaged
-    over programs. None where the record has no evaluation times (``curve_wall_s``: per program the seconds
-    since its start at each evaluation), fewer than three evaluations, or was cut short."""
-    walls, steps = side.get("curve_wall_s"), side.get("curve_steps") or []
+    over the programs that kept their times (``curve_wall_s``: per program the seconds since its start at each
+    evaluation, None for a program whose times were not recorded). None where no program has times, there
+    are fewer than three evaluations, or the run was cut short."""
+    walls, steps = [w for w in side.get("curve_wall_s") or [] if w is not None], side.get("curve_steps") or []
     if not walls or len(steps) < 3 or side.get("cut") or any(len(w) != len(steps) for w in walls):
         return None
     scale = side["env_steps"] / (steps[-1] - steps[1])
     return float(np.mean([(w[-1] - w[1]) * scale for w in walls])) / side.get("seeds_per_program", 1)
+
+
+def timed_seeds(side: dict[str, Any]) -> tuple[int, int]:
+    """(seeds whose evaluation times were recorded, seeds) of a side: the seeds :func:`training_wall_per_seed`
+    speaks for."""
+    per = side.get("seeds_per_program", 1)
+    timed = sum(w is not None for w in side.get("curve_wall_s") or []) * per
+    return timed, len(side.get("returns") or [])
+
+
+def apart_cell(side: dict[str, Any]) -> str:
+    """A side's wall per seed with compilation apart for the table: "—" without evaluation times, and how many
+    seeds it is over where not all of them kept theirs."""
+    wall = training_wall_per_seed(side)
+    if wall is None:
+        return "—"
+    timed, seeds = timed_seeds(side)
+    return f"{wall:.0f}" + (f" ({timed} of {seeds} seeds)" if timed < seeds else "")
 
 
 def return_ratio(ours: float, brax: float) -> float:
@@ -90,7 +109,8 @@ def to_markdown(result: dict[str, Any]) -> str:
            f"{result['eval_episodes']} episodes; brax: 128) in the mode its column names — sampled actions "
            "(brax's default) or the mean action; ours also with the mean action; ± the std over seeds. Wall: "
            "compilation included; compile apart: from a side's second evaluation to its last, scaled to all its env "
-           "steps, per seed (`training_wall_per_seed`; — where the record has no evaluation times). "
+           "steps, per seed (`training_wall_per_seed`; — where the record has no evaluation times; over the seeds "
+           "that have them where a merge joined seeds run before times were recorded). "
            "Ours against brax's: the difference of the means with its 95 % confidence "
            "interval (Welch's t) and Mann–Whitney's two-sided p, seeds per side; **ahead** / behind only where the "
            "interval excludes 0, else level (`benchmarks/stats.py`). Bold: ahead in the same mode; our wall per "
@@ -122,7 +142,7 @@ def to_markdown(result: dict[str, Any]) -> str:
         seeds_done = f" ({len(b['returns'])} of {result['brax_seeds']} seeds)" if short else ""
         seeds_done += f" (cut at {b['env_steps']:,} steps)" if b.get("cut") else ""
         mode_word = "" if np.isnan(rb) else f" ({words[mode]})"
-        apart = " / ".join("—" if w is None else f"{w:.0f}" for w in map(training_wall_per_seed, (b, o)))
+        apart = " / ".join(apart_cell(side) for side in (b, o))
         out.append(f"| {t['task']} | {o['env_steps']:,} | {rb:.1f} ± {np.std(b['returns']):.1f}{mode_word}"
                    f"{seeds_done} | {'**' + cell + '**' if won else cell} | {mean_cell} | {verdict} "
                    f"| {b['wall_per_seed_s']:.0f} | {'**' + wall + '**' if fast else wall} | {apart} "
