@@ -45,7 +45,8 @@ def join_seeds(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
     if not (ids_a and ids_b and same and not set(ids_a) & set(ids_b)):
         return b
     wall, steps = a["wall_s"] + b["wall_s"], len(ids_a) * a["env_steps"] + len(ids_b) * b["env_steps"]
-    joined = {**b, "returns": a["returns"] + b["returns"], "curves": a["curves"] + b["curves"],
+    asked = {"seeds_asked": a["seeds_asked"] + b["seeds_asked"]} if "seeds_asked" in a and "seeds_asked" in b else {}
+    joined = {**b, **asked, "returns": a["returns"] + b["returns"], "curves": a["curves"] + b["curves"],
               "seed_ids": ids_a + ids_b, "wall_s": wall, "wall_per_seed_s": wall / (len(ids_a) + len(ids_b)),
               "env_steps_per_s": steps / wall}  # fmt: skip
     if "curve_wall_s" in a or "curve_wall_s" in b:  # one program a seed: None where a seed's times were not kept
@@ -93,6 +94,8 @@ def merge(paths: list[str], out: str, argv: list[str] | None = None, label: str 
     tasks: dict[str, dict[str, Any]] = {}
     for part in parts:
         for row in part["tasks"]:
+            if "brax" in row:  # the seeds its invocation asked for: fewer returns mean a run cut short
+                row["brax"].setdefault("seeds_asked", part["brax_seeds"])
             merged = tasks.setdefault(row["task"], {"task": row["task"], "settings": row["settings"], "sides": []})
             # the sides a row holds (files from before a killed side was listed: the records present)
             for side in row.get("sides") or [name for name in ("ours", "brax") if name in row]:

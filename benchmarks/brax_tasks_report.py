@@ -71,6 +71,15 @@ def timed_seeds(side: dict[str, Any]) -> tuple[int, int]:
     return timed, len(side.get("returns") or [])
 
 
+def brax_seed_words(result: dict[str, Any]) -> str:
+    """How many seeds brax's side ran: the invocation's count, or the range over a merged report's rows."""
+    counts = sorted({len(t["brax"]["returns"]) for t in result["tasks"] if "brax" in t and t["brax"].get("returns")
+                     and not np.isnan(t["brax"]["returns"][0])})  # fmt: skip
+    if not result.get("merged_from") or len(counts) < 2:
+        return str(result["brax_seeds"])
+    return f"{counts[0]}–{counts[-1]} (the row's comparison says how many)"
+
+
 def apart_cell(side: dict[str, Any]) -> str:
     """A side's wall per seed with compilation apart for the table: "—" without evaluation times, and how many
     seeds it is over where not all of them kept theirs."""
@@ -104,7 +113,7 @@ def to_markdown(result: dict[str, Any]) -> str:
     where = "MuJoCo Playground's tasks" if len(pg) == len(result["tasks"]) else "brax's tasks"
     out = [f"# Our {name} beside brax's {peer.upper()} on {where} — {result['device']}", "",
            f"Backend `{result['backend']}`; {result['seeds']} seeds of ours ({result['seed_map']}), "
-           f"{result['brax_seeds']} of brax's (one after another); the same env steps and settings "
+           f"{brax_seed_words(result)} of brax's (one after another); the same env steps and settings "
            f"({source}). Return: each side's final evaluation on fresh episodes (ours: "
            f"{result['eval_episodes']} episodes; brax: 128) in the mode its column names — sampled actions "
            "(brax's default) or the mean action; ours also with the mean action; ± the std over seeds. Wall: "
@@ -138,8 +147,9 @@ def to_markdown(result: dict[str, Any]) -> str:
         cell += cut
         mean_cell = f"{np.mean(mean):.1f} ± {np.std(mean):.1f}{cut}" if mean else "not measured"
         wall = f"{o['wall_per_seed_s']:.0f}"
-        short = len(b["returns"]) < result["brax_seeds"] and not np.isnan(rb)  # a killed run: the seeds it finished
-        seeds_done = f" ({len(b['returns'])} of {result['brax_seeds']} seeds)" if short else ""
+        asked = b.get("seeds_asked", result["brax_seeds"])  # merged: the seeds its invocations asked for
+        short = len(b["returns"]) < asked and not np.isnan(rb)  # a killed run: the seeds it finished
+        seeds_done = f" ({len(b['returns'])} of {asked} seeds)" if short else ""
         seeds_done += f" (cut at {b['env_steps']:,} steps)" if b.get("cut") else ""
         mode_word = "" if np.isnan(rb) else f" ({words[mode]})"
         apart = " / ".join(apart_cell(side) for side in (b, o))

@@ -173,6 +173,16 @@ def test_a_killed_brax_run_keeps_the_seeds_it_finished(tmp_path):
     open(brax, "w").write(json.dumps(part))
     result = brax_tasks.main(["--merge", brax, str(tmp_path / "ours16.json"), "--out", str(tmp_path / "out")])
     assert (result["seeds"], result["brax_seeds"], ours["brax_seeds"]) == (16, 1, 16)
+    # merged rows of different seed counts: a row is short only against what its own invocations asked for
+    three = json.loads(open(_part(tmp_path, "b3", "brax", [1.0, 2.0, 3.0], 5.0, seed_ids=[0, 1, 2])).read())
+    one = json.loads(open(_part(tmp_path, "b1", "brax", [4.0], 5.0, seed_ids=[3])).read())
+    one["tasks"][0]["task"] = "reacher"
+    for name, part in (("b3", three), ("b1", one)):
+        (tmp_path / f"{name}.json").write_text(json.dumps(part))
+    result = brax_tasks.main(["--merge", *(str(tmp_path / f"{n}.json") for n in ("b3", "b1")),
+                              "--out", str(tmp_path / "rows")])  # fmt: skip
+    md = (tmp_path / "rows" / "gpu-x-brax_tasks.md").read_text()
+    assert result["brax_seeds"] == 3 and "of 3 seeds" not in md and "1–3 (the row's comparison says how many)" in md
 
 
 def test_a_side_cut_short_shows_its_steps_and_is_not_compared(tmp_path):

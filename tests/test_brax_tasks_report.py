@@ -27,6 +27,7 @@ def test_training_wall_per_seed_leaves_compilation_out_by_hand(tmp_path):
     a = {**record, "seed_ids": [0], "curve_wall_s": [[5.0, 20.0, 26.0]]}
     b = {**record, "seed_ids": [1], "curve_wall_s": [[5.0, 22.0, 30.0]]}
     assert join_seeds(a, b)["curve_wall_s"] == brax["curve_wall_s"]
+    assert join_seeds({**a, "seeds_asked": 1}, {**b, "seeds_asked": 2})["seeds_asked"] == 3  # a short run stays so
     # a seed run before times were kept: the wall apart speaks for the timed seed alone (8 s over 50 steps -> 16 s)
     untimed = join_seeds({k: v for k, v in a.items() if k != "curve_wall_s"}, b)
     assert untimed["curve_wall_s"] == [None, [5.0, 22.0, 30.0]] and untimed["seed_ids"] == [0, 1]
