@@ -6,8 +6,8 @@ fuse into loop nests that recompute each link's transform for every element that
 cost of ``mjx.kinematics`` grows about tenfold per link of a serial chain.  For this package's
 7-link arm ``mjx.kinematics`` ran ~160 calls/s at 256 lanes with XLA's defaults and ~1.1 M/s with
 the pass disabled; stepping the arm with MJX (10 substeps per control step, 64 lanes) ran 6 control
-steps/s and ~15,700 (``benchmarks/results/cpu-env_throughput.md``), while a 2 x 256 MLP update
-ran at the same speed either way.  GPUs are not affected.  The pass cannot be disabled more
+steps/s and ~9,800 (``benchmarks/results/cpu-2core-env_throughput.md``), while a 2 x 256 MLP Adam
+update ran at 159 and 201 updates/s.  GPUs are not affected.  The pass cannot be disabled more
 narrowly, and the one other option that helped, ``xla_cpu_use_fusion_emitters=false``, fixes
 kinematics but compiles ``mjx.step`` 2-3x slower and runs it at half the speed.
 
