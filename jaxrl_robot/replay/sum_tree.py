@@ -31,14 +31,15 @@ kernels XLA launches and the elements each touches, not by the arithmetic of a d
 
 Depth against width: a level costs one reduction kernel and ``m · b`` compares to sample,
 and one ``[B, b]`` row to update (built by an unrolled add chain that XLA re-evaluates per
-element, so ``O(b²)`` adds per row).  Measured at capacity 10^6 on the shared 2-core CPU
-(``benchmarks/results/cpu-2core-replay_throughput.md``): ``b = 16`` samples fastest and
-``b = 8`` gives the cheapest fused sample → update step (its rows are 4 × cheaper), by
-about 1.3 ×; ``b = 2`` (20 levels) pays a kernel per level and ``b >= 32`` pays for its
-rows.  ``b = 16`` stays the default because on a GPU, where a kernel launch costs more than
-these few thousand compares, the two extra levels of ``b = 8`` add launches to both sample
-and update; ``python -m benchmarks.replay_throughput`` prints the branchings side by side
-so the default can follow the GPU measurement.  On an H200 (capacity 10^6, batch 128 and 256,
+element, so ``O(b²)`` adds per row).  Measured at capacity 10^6 on the 2-core CPU
+(``benchmarks/results/cpu-2core-replay_throughput.md``, batch 128 and 256): ``b = 16``
+samples fastest (``b = 32`` level with it at 128) and has the cheapest sample → write-back step
+as DDPG fuses it (142 and 253 µs against ``b = 8``'s 147 and 266); ``b = 8`` updates about
+2 × faster, so its sample and update timed apart add up to about 1.1 × less; ``b = 2`` (20
+levels) pays a kernel per level and ``b >= 32`` pays for its rows.  On a GPU, where a kernel
+launch costs more than these few thousand compares, the two extra levels of ``b = 8`` add
+launches to both sample and update; ``python -m benchmarks.replay_throughput`` prints the
+branchings side by side so the default can follow the GPU measurement.  On an H200 (capacity 10^6, batch 128 and 256,
 ``gpu-nvidia_h200-replay_throughput.md``) ``b = 8``, ``16`` and ``32`` came within 8 % of one
 another (sample + update 46–49 µs), so 16 stays.
 
