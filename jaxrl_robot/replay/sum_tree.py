@@ -39,9 +39,9 @@ as DDPG fuses it (142 and 253 µs against ``b = 8``'s 147 and 266); ``b = 8`` up
 levels) pays a kernel per level and ``b >= 32`` pays for its rows.  On a GPU, where a kernel
 launch costs more than these few thousand compares, the two extra levels of ``b = 8`` add
 launches to both sample and update; ``python -m benchmarks.replay_throughput`` prints the
-branchings side by side so the default can follow the GPU measurement.  On an H200 (capacity 10^6, batch 128 and 256,
-``gpu-nvidia_h200-replay_throughput.md``) ``b = 8``, ``16`` and ``32`` came within 8 % of one
-another (sample + update 46–49 µs), so 16 stays.
+branchings side by side so the default can follow the GPU measurement.  On an H200 (capacity
+10^6, batch 128 and 256, ``gpu-nvidia_h200-replay_throughput.md``) ``b = 8``, ``16`` and ``32``
+came within 8 % of one another (sample + update 46–49 µs), so 16 stays.
 
 All functions are pure, jittable and vmappable; nothing is jitted here.
 
