@@ -146,10 +146,11 @@ def chain_from_model(model: mujoco.MjModel, site: str = "ee") -> Chain:
     )
 
 
-def _axis_rotation(axis: np.ndarray, angle: jax.Array) -> jax.Array:
-    """Rodrigues' formula: ``[3, 3]`` rotation by ``angle`` about the unit ``axis`` (NumPy constant)."""
+def _axis_rotation(axis: np.ndarray, angle: jax.Array, xp=jnp) -> jax.Array:
+    """Rodrigues' formula: ``[3, 3]`` rotation by ``angle`` about the unit ``axis`` (NumPy constant), in
+    ``xp`` (``jax.numpy``, or NumPy for a constant angle)."""
     k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]], np.float32)
-    return jnp.eye(3) + jnp.sin(angle) * k + (1.0 - jnp.cos(angle)) * (k @ k)
+    return xp.eye(3, dtype=np.float32) + xp.sin(angle) * k + (1.0 - xp.cos(angle)) * (k @ k)
 
 
 def forward_kinematics(chain: Chain, q: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
@@ -157,12 +158,14 @@ def forward_kinematics(chain: Chain, q: jax.Array) -> tuple[jax.Array, jax.Array
 
     Args:
       chain: the arm (static).
-      q: ``[n]`` joint angles (MuJoCo qpos).
+      q: ``[n]`` joint angles (MuJoCo qpos); a NumPy array is computed in NumPy (an env's constants at
+        build time, without dispatching a compiled program per operation).
     Returns:
-      ``(site [3], anchors [n, 3], axes [n, 3])``.
+      ``(site [3], anchors [n, 3], axes [n, 3])``, NumPy arrays for a NumPy ``q``.
     """
-    pos = jnp.asarray(chain.base_pos)
-    rot = jnp.asarray(chain.base_rot)
+    xp = np if isinstance(q, np.ndarray) else jnp
+    pos = xp.asarray(chain.base_pos)
+    rot = xp.asarray(chain.base_rot)
     anchors, axes = [], []
     for i in range(chain.n):
         pos = pos + rot @ chain.pre_pos[i]
@@ -170,10 +173,10 @@ def forward_kinematics(chain: Chain, q: jax.Array) -> tuple[jax.Array, jax.Array
         anchor = pos + rot @ chain.anchor[i]
         anchors.append(anchor)
         axes.append(rot @ chain.axis[i])
-        rot = rot @ _axis_rotation(chain.axis[i], q[i] - chain.qpos0[i])
+        rot = rot @ _axis_rotation(chain.axis[i], q[i] - chain.qpos0[i], xp)
         pos = anchor - rot @ chain.anchor[i]
     site = pos + rot @ chain.site_pos
-    return site, jnp.stack(anchors), jnp.stack(axes)
+    return site, xp.stack(anchors), xp.stack(axes)
 
 
 def fk_jac(chain: Chain, q: jax.Array) -> tuple[jax.Array, jax.Array]:

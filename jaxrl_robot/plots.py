@@ -3,13 +3,17 @@
 from __future__ import annotations
 
 import os
+import threading
 import warnings
 from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
-__all__ = ["plot_seed_bands", "plot_staleness", "plot_training_curves", "plot_tracking", "plot_worker_curves"]
+__all__ = [
+    "import_in_background", "plot_seed_bands", "plot_staleness", "plot_training_curves", "plot_tracking",
+    "plot_worker_curves",
+]  # fmt: skip
 
 _CURVES = (
     ("episode_return", "Episode reward", "episode_reward.png"),
@@ -27,6 +31,26 @@ def _plt() -> Any:
     import matplotlib.pyplot as plt
 
     return plt
+
+
+def import_in_background() -> threading.Thread:
+    """Start importing :func:`_plt`'s ``pyplot`` in a daemon thread and return it.
+
+    A run that draws its figures after training calls this when training starts: the import (about a
+    second of Python) then overlaps the compiled chunks, which hold no Python lock while they run, instead
+    of delaying the end of the run. A later :func:`_plt` waits for the import if it has not finished (the
+    import system's module lock); an import error surfaces there, where the figures are drawn.
+    """
+
+    def target() -> None:
+        try:
+            _plt()
+        except Exception:  # reported by the drawing's own import
+            pass
+
+    thread = threading.Thread(target=target, name="import-pyplot", daemon=True)
+    thread.start()
+    return thread
 
 
 def _save(fig: Any, out_dir: str, name: str) -> str:

@@ -63,7 +63,7 @@ from jaxrl_robot.checkpoint import Checkpointer
 from jaxrl_robot.compilation import compile_log
 from jaxrl_robot.evaluation import evaluation_key
 from jaxrl_robot.logging import MetricsLogger, read_csv
-from jaxrl_robot.plots import plot_training_curves
+from jaxrl_robot.plots import import_in_background, plot_training_curves
 from train import periodic
 from train.evaluations import RunEvaluations, compile_evaluation_async, evaluation_title, print_table
 from train.hosts import is_main_process, local_view, say, to_host
@@ -284,6 +284,8 @@ def _chunk(r: _Run, bar: Progress) -> None:
     dt = time.perf_counter() - t_chunk
     if r.compile_s is None:
         r.compile_s = dt
+        if r.loggers and jax.default_backend() != "cpu":  # pyplot imported while an accelerator runs the
+            import_in_background()  # chunks (on the CPU backend the cores run them: it would only slow them)
     _check_losses(r, per_seed)
     r.state, r.chunk = new_state, r.chunk + 1
     sps = r.steps_per * len(r.seeds) / max(dt, 1e-9)

@@ -52,6 +52,16 @@ def test_chain_matches_mujoco_c_engine_and_mjx(model, chain):
     assert np.ptp(np.asarray(site), axis=0).min() > 0.2  # the configurations really differ
 
 
+def test_numpy_forward_kinematics_is_numpy_and_matches_the_c_engine(model, chain):
+    """A NumPy ``q`` (an env's constants at build time) is computed in NumPy: no JAX array comes back, and the
+    site is MuJoCo's."""
+    for q in random_configs(chain, 4, seed=1):
+        site, anchors, axes = ik.forward_kinematics(chain, q)
+        assert all(type(x) is np.ndarray for x in (site, anchors, axes))
+        assert anchors.shape == axes.shape == (chain.n, 3)
+        np.testing.assert_allclose(site, c_site_and_jac(model, q)[0], atol=2e-6)
+
+
 def test_update_rules_match_their_formulas():
     rng = np.random.default_rng(1)
     jac = rng.normal(size=(3, 7)).astype(np.float32)
