@@ -187,3 +187,60 @@ def test_the_key_follows_the_project_files(tmp_path):
     assert compilation._files_digest(str(tmp_path / "pkg")) != before
     assert cli.program_context({"args": {"seed": 3, "out": "x", "env": "arm7"}, "ppo": {"gamma": 0.9}}) == {
         "args": {"env": "arm7"}, "ppo": {"gamma": 0.9}}  # other seeds and folders share programs
+
+
+def test_a_program_compiled_ahead_is_the_one_a_matching_call_runs(tmp_path):
+    """``CachedJit.compile_ahead`` builds the program in a thread from shapes alone; the call with arguments of
+    that signature runs it (traced once in all), equal to ``jax.jit``; other arguments compile in line."""
+    import jax
+    import numpy as np
+
+    traced = []
+    f, args = _program(traced), _args()
+    expected = jax.jit(f)(*args)
+    jitted = compilation.ProgramCache(str(tmp_path), {"run": 1}).jit("f", f)
+    sharding = jax.device_put(np.zeros(())).sharding
+    described = jax.tree.map(lambda x: jax.ShapeDtypeStruct(np.shape(x), x.dtype, sharding=sharding), args)
+    future = jitted.compile_ahead(*described)
+    future.result(timeout=120)
+    assert len(traced) == 2  # jax.jit's and the one ahead
+    placed = jax.device_put(args)  # committed arrays: the shardings the description named
+    for a, b in zip(jax.tree.leaves(jitted(*placed)), jax.tree.leaves(expected), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    assert len(traced) == 2  # the call waited for the program ahead instead of tracing again
+    other = _args(rows=5)
+    np.testing.assert_allclose(np.asarray(jitted(*other)[0]["y"]), np.asarray(jax.jit(f)(*other)[0]["y"]), atol=1e-6)
+    assert len(traced) == 4  # a signature nobody described: traced for the cache (and once by the oracle)
+
+
+def test_seed_program_compiles_the_chunk_ahead_only_while_the_programs_are_not_kept(tmp_path):
+    """``SeedProgram.compile_ahead`` starts the chunk's build before ``init`` on a first run (the chunk traced
+    once, from the described state), not on a run whose programs are kept; the states are ``jax.jit``'s."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from jaxrl_robot.types import Trainer
+    from train.seeds import SeedProgram
+
+    traced = []
+
+    def init(key):
+        return {"w": jax.random.normal(key, (3,)), "t": jnp.zeros((), jnp.int32)}
+
+    def update(state):
+        traced.append(1)
+        return {"w": state["w"] * 0.5 + 1.0, "t": state["t"] + 1}, {"norm": jnp.linalg.norm(state["w"])}
+
+    trainer = Trainer(init=init, update=update, policy=None, num_updates=2, env_steps_per_update=1)
+    oracle = SeedProgram.of(trainer, 1)
+    want = oracle.update(oracle.init([7]))
+    for seeds, started in ((([7]), True), (([7]), False)):  # the second: as a later process, programs kept
+        traced.clear()
+        program = SeedProgram.of(trainer, 1, cache=compilation.ProgramCache(str(tmp_path), {"run": 1}))
+        assert program.compile_ahead(seeds) is started
+        got = program.update(program.init(seeds))
+        assert len(traced) == (1 if started else 0)
+        for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(want), strict=True):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    assert SeedProgram.of(trainer, 1).compile_ahead([7]) is False  # no program cache: jax.jit's own

@@ -204,6 +204,8 @@ def _start(spec: RunSpec, run_dir: str) -> _Run:
     t0, startup_s = time.perf_counter(), process_age_s()
     seeds = [spec.seed + i for i in range(spec.seeds)]
     program = SeedProgram.of(spec.trainer, len(seeds), spec.seed_map, spec.program_cache)
+    if spec.run_dir is None:  # a new run (a resumed one's chunk is compiled for the restored state)
+        program.compile_ahead(seeds)
     state = program.init(seeds)
     seed_dirs = [os.path.join(run_dir, f"seed{k}") for k in seeds] if len(seeds) > 1 else [run_dir]
     ckpt = Checkpointer(os.path.join(run_dir, "checkpoints"))

@@ -4,6 +4,7 @@ told apart (:class:`SeedProgram`)."""
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -12,6 +13,7 @@ import jax.numpy as jnp
 
 from jaxrl_robot import parallel
 from jaxrl_robot.compilation import ProgramCache
+from jaxrl_robot.compilation.programs import CachedJit
 from jaxrl_robot.types import Trainer
 
 __all__ = ["SEED_MAPS", "SeedProgram", "resolve_seed_map"]
@@ -54,6 +56,9 @@ class SeedProgram:
     update: Callable[[Any], tuple[Any, Any]]
     view: Callable[[Any, int], Any]
     per_seed: Callable[[Any], list[dict[str, float]]]
+    compile_ahead: Callable[[Sequence[int]], bool] = lambda seeds: False
+    """``compile_ahead(seeds)``: before ``init(seeds)``, start building ``update``'s program in a thread when
+    the programs are not kept yet (:func:`_ahead`); whether it started."""
 
     @staticmethod
     def of(trainer: Trainer, n: int, seed_map: str = "auto", cache: ProgramCache | None = None) -> SeedProgram:
@@ -62,25 +67,42 @@ class SeedProgram:
         mapping = resolve_seed_map(seed_map)
         jit = jax.jit if cache is None else (lambda fn: cache.jit(getattr(fn, "__name__", "program"), fn))  # noqa: E731
         update = jit(trainer.update)
+        if n == 1 or mapping == "loop":
+            init_one = jit(trainer.init)
+            first_key = lambda seeds: jax.random.PRNGKey(seeds[0])  # noqa: E731
+            ahead = functools.partial(_ahead, init_one, trainer.init, update, first_key)
         if n == 1:
-            init_one = jit(trainer.init)
             init = lambda seeds: init_one(jax.random.PRNGKey(seeds[0]))  # noqa: E731
-            return SeedProgram(init, update, lambda tree, i: tree, lambda m: [_floats(m)])
+            return SeedProgram(init, update, lambda tree, i: tree, lambda m: [_floats(m)], ahead)
         if mapping == "loop":
-            init_one = jit(trainer.init)
 
             def update_all(states: tuple) -> tuple[tuple, tuple]:
                 out = [update(s) for s in states]
                 return tuple(o[0] for o in out), tuple(o[1] for o in out)
 
             return SeedProgram(lambda seeds: tuple(init_one(jax.random.PRNGKey(k)) for k in seeds), update_all,
-                               lambda tree, i: tree[i], lambda ms: [_floats(m) for m in ms])  # fmt: skip
+                               lambda tree, i: tree[i], lambda ms: [_floats(m) for m in ms], ahead)  # fmt: skip
 
-        init_vmapped = jit(jax.vmap(trainer.init))
-
-        def init_all(seeds: Sequence[int]) -> Any:
-            return init_vmapped(jnp.stack([jax.random.PRNGKey(k) for k in seeds]))
-
-        return SeedProgram(init_all, jit(jax.vmap(trainer.update)),
+        init_vmapped, update_vmapped = jit(jax.vmap(trainer.init)), jit(jax.vmap(trainer.update))
+        stacked = lambda seeds: jnp.stack([jax.random.PRNGKey(k) for k in seeds])  # noqa: E731
+        ahead = functools.partial(_ahead, init_vmapped, jax.vmap(trainer.init), update_vmapped, stacked)
+        return SeedProgram(lambda seeds: init_vmapped(stacked(seeds)), update_vmapped,
                            lambda tree, i: jax.tree.map(lambda x: x[i], tree),
-                           lambda m: [{k: float(v[i]) for k, v in m.items()} for i in range(n)])  # fmt: skip
+                           lambda m: [{k: float(v[i]) for k, v in m.items()} for i in range(n)], ahead)  # fmt: skip
+
+
+def _ahead(init: Callable, init_fn: Callable, update: Callable, keys: Callable, seeds: Sequence[int]) -> bool:
+    """Start compiling ``update`` (a :class:`CachedJit`) in a thread, for the state ``init_fn(keys(seeds))``
+    will give, while ``init`` (the :class:`CachedJit` of ``init_fn``) is built: XLA compiles each program
+    on one core, so on a first run the chunk's compilation overlaps the initialisation's instead of
+    following it. Only when ``init``'s program is not kept yet (a later run loads both at once, and
+    describing the state would cost a trace of ``init_fn``) and on a single device (the state's sharding
+    is then the keys'; on several, the trainer's own). Returns whether it started."""
+    if not isinstance(update, CachedJit) or jax.device_count() > 1:
+        return False
+    k = keys(seeds)
+    if init.cache.has(init.name, k):
+        return False
+    place = lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=k.sharding)  # noqa: E731
+    update.compile_ahead(jax.tree.map(place, jax.eval_shape(init_fn, k)))
+    return True

@@ -16,6 +16,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Mapping
+from concurrent.futures import Future, ThreadPoolExecutor
 from importlib import metadata
 from typing import Any
 
@@ -24,7 +25,7 @@ import jax
 from jaxrl_robot import parallel
 from jaxrl_robot.compilation.log import compile_log
 
-__all__ = ["FINGERPRINTED", "PROGRAMS", "VERSIONED", "ProgramCache", "code_fingerprint", "signature"]
+__all__ = ["FINGERPRINTED", "PROGRAMS", "VERSIONED", "CachedJit", "ProgramCache", "code_fingerprint", "signature"]
 
 PROGRAMS = "programs"
 """Subfolder of the cache folder holding :class:`ProgramCache`'s executables."""
@@ -180,19 +181,15 @@ class ProgramCache:
         compiled = jax.jit(_named(exported.call, name)).lower(*leaves).compile()
         return lambda *a: jax.tree.unflatten(out_tree, compiled(*jax.tree.leaves(a)))
 
-    def jit(self, name: str, fn: Callable) -> Callable:
+    def jit(self, name: str, fn: Callable) -> CachedJit:
         """A function like ``jax.jit(fn)`` whose program for each argument signature comes from
-        :meth:`compile` (looked up once per signature in this process)."""
-        programs: dict[tuple, Callable] = {}
+        :meth:`compile` (looked up once per signature in this process; :meth:`CachedJit.compile_ahead`
+        starts one in a thread before the arguments exist)."""
+        return CachedJit(self, name, fn)
 
-        def call(*args: Any) -> Any:
-            key = _call_key(args)
-            program = programs.get(key)
-            if program is None:
-                program = programs[key] = self.compile(name, fn, *args)
-            return program(*args)
-
-        return call
+    def has(self, name: str, *args: Any) -> bool:
+        """Whether program ``name`` for ``args`` is kept in the folder (a later :meth:`compile` loads it)."""
+        return os.path.exists(self.path(name, args))
 
     def _load(self, path: str) -> tuple[Any, Any] | None:
         """``(exported, out_tree)`` saved at ``path``; None when absent or unusable (then removed)."""
@@ -243,6 +240,41 @@ class ProgramCache:
         if not self._warned:
             self._warned = True
             print(f"note: {message}", file=sys.stderr, flush=True)
+
+
+class CachedJit:
+    """``ProgramCache.jit(name, fn)``: called like ``jax.jit(fn)``, its program per argument signature from
+    :meth:`ProgramCache.compile`; :meth:`compile_ahead` builds one in a thread for arguments described by
+    ``jax.ShapeDtypeStruct`` leaves (their shardings included), so that its tracing, lowering and XLA
+    compilation overlap other work, e.g. another program's compilation (XLA compiles one program on one
+    core). A call whose arguments match waits for that build; a build that failed is retried in line."""
+
+    def __init__(self, cache: ProgramCache, name: str, fn: Callable):
+        self.cache, self.name, self.fn = cache, name, fn
+        self._programs: dict[tuple, Callable | Future] = {}
+
+    def compile_ahead(self, *abstract_args: Any) -> Future:
+        """Start building the program for arguments like ``abstract_args`` in a daemon thread; its future."""
+        executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"compile-{self.name}")
+        future = executor.submit(self.cache.compile, self.name, self.fn, *abstract_args)
+        executor.shutdown(wait=False)
+        self._programs[_call_key(abstract_args)] = future
+        return future
+
+    def __call__(self, *args: Any) -> Any:
+        key = _call_key(args)
+        program = self._programs.get(key)
+        if isinstance(program, Future):
+            try:
+                program = program.result()
+            except Exception as e:  # built again below, in line
+                print(f"note: compiling {self.name!r} ahead failed ({type(e).__name__}: {e}); compiling it now"[:300],
+                      file=sys.stderr, flush=True)  # fmt: skip
+                program = None
+        if program is None:
+            program = self.cache.compile(self.name, self.fn, *args)
+        self._programs[key] = program
+        return program(*args)
 
 
 def _named(fn: Callable, name: str) -> Callable:
