@@ -244,3 +244,13 @@ def test_seed_program_compiles_the_chunk_ahead_only_while_the_programs_are_not_k
         for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(want), strict=True):
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     assert SeedProgram.of(trainer, 1).compile_ahead([7]) is False  # no program cache: jax.jit's own
+    for seed_map in ("vmap", "loop"):  # several seeds: one program over a seed axis, or one looped over them
+        oracle = SeedProgram.of(trainer, 2, seed_map)
+        want = oracle.update(oracle.init([7, 8]))
+        traced.clear()
+        program = SeedProgram.of(trainer, 2, seed_map, compilation.ProgramCache(str(tmp_path / seed_map), {"run": 1}))
+        assert program.compile_ahead([7, 8]) is True
+        got = program.update(program.init([7, 8]))
+        assert len(traced) == 1  # built ahead, from the described state, and used by the call
+        for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(want), strict=True):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
