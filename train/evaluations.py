@@ -8,12 +8,13 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future
 from typing import Any
 
 import jax
 import numpy as np
 
+from jaxrl_robot.compilation import in_thread
 from jaxrl_robot.evaluation import (
     evaluate,
     evaluation_kind,
@@ -53,13 +54,9 @@ def compile_evaluation_async(
     if evaluation_kind(spec.env) != "episodes":
         return None
     fn, cache = jax.jit(_program_of(spec)), spec.program_cache
-    executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="compile-eval")
     if cache is None:
-        future = executor.submit(lambda: fn.lower(key, state).compile())
-    else:
-        future = executor.submit(cache.compile, "evaluation", fn, key, state)
-    executor.shutdown(wait=False)
-    return future
+        return in_thread("compile-eval", lambda: fn.lower(key, state).compile())
+    return in_thread("compile-eval", cache.compile, "evaluation", fn, key, state)
 
 
 def compiled_program(future: Future | None) -> Callable[..., Any] | None:

@@ -12,8 +12,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxrl_robot import parallel
-from jaxrl_robot.compilation import ProgramCache
-from jaxrl_robot.compilation.programs import CachedJit
+from jaxrl_robot.compilation import CachedJit, ProgramCache
 from jaxrl_robot.types import Trainer
 
 __all__ = ["SEED_MAPS", "SeedProgram", "resolve_seed_map"]

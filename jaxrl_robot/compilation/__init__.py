@@ -25,17 +25,19 @@ import os
 import jax
 
 from jaxrl_robot.compilation.log import CompileLog, compile_log
-from jaxrl_robot.compilation.programs import ProgramCache, code_fingerprint, signature
+from jaxrl_robot.compilation.programs import CachedJit, ProgramCache, code_fingerprint, in_thread, signature
 from jaxrl_robot.compilation.programs import _files_digest as _files_digest
 
 __all__ = [
     "CACHE_ENV",
+    "CachedJit",
     "CompileLog",
     "ProgramCache",
     "code_fingerprint",
     "compile_log",
     "default_cache_dir",
     "enable_persistent_cache",
+    "in_thread",
     "resolve_cache_dir",
     "signature",
 ]

@@ -25,7 +25,9 @@ import jax
 from jaxrl_robot import parallel
 from jaxrl_robot.compilation.log import compile_log
 
-__all__ = ["FINGERPRINTED", "PROGRAMS", "VERSIONED", "CachedJit", "ProgramCache", "code_fingerprint", "signature"]
+__all__ = [
+    "FINGERPRINTED", "PROGRAMS", "VERSIONED", "CachedJit", "ProgramCache", "code_fingerprint", "in_thread", "signature",
+]  # fmt: skip
 
 PROGRAMS = "programs"
 """Subfolder of the cache folder holding :class:`ProgramCache`'s executables."""
@@ -254,10 +256,8 @@ class CachedJit:
         self._programs: dict[tuple, Callable | Future] = {}
 
     def compile_ahead(self, *abstract_args: Any) -> Future:
-        """Start building the program for arguments like ``abstract_args`` in a daemon thread; its future."""
-        executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"compile-{self.name}")
-        future = executor.submit(self.cache.compile, self.name, self.fn, *abstract_args)
-        executor.shutdown(wait=False)
+        """Start building the program for arguments like ``abstract_args`` in a thread (:func:`in_thread`)."""
+        future = in_thread(f"compile-{self.name}", self.cache.compile, self.name, self.fn, *abstract_args)
         self._programs[_call_key(abstract_args)] = future
         return future
 
@@ -275,6 +275,15 @@ class CachedJit:
             program = self.cache.compile(self.name, self.fn, *args)
         self._programs[key] = program
         return program(*args)
+
+
+def in_thread(name: str, fn: Callable, *args: Any) -> Future:
+    """``fn(*args)`` started in a thread of its own named ``name`` (XLA compiles while the caller goes on); the
+    future of its result. The thread is not waited for here; the interpreter joins it at exit."""
+    executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix=name)
+    future = executor.submit(fn, *args)
+    executor.shutdown(wait=False)
+    return future
 
 
 def _named(fn: Callable, name: str) -> Callable:
