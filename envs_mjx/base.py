@@ -527,7 +527,7 @@ class PoolResetWrapper(_ParamWrapper):
         big = 1 << 21
         prio = done.astype(jnp.int32) * (2 * big) + stale.astype(jnp.int32) * big
         prio = prio + jnp.minimum(info["pool_age"], big - 1)
-        _, idx = jax.lax.top_k(prio, r)
+        idx = top_indices(prio, r)
         pairs = jax.vmap(jax.random.split)(info["reset_key"][idx])
         params = info.get("params")
         lane_params = None if params is None else jax.tree.map(lambda x: x[idx], params)
@@ -551,6 +551,17 @@ class PoolResetWrapper(_ParamWrapper):
         )
         physics = backend.select(done, pool["pipeline_state"], physics_of(nstate))
         return with_physics(nstate, physics).replace(obs=pick(pool["obs"], nstate.obs), info=new_info)
+
+
+def top_indices(prio: jax.Array, r: int) -> jax.Array:
+    """``[r]`` indices of the ``r`` largest of ``prio`` (``[G]`` ints), ties to the lower index: ``lax.top_k``'s.
+
+    A stable sort rather than ``lax.top_k``: under the vmap lane map (``jaxrl_robot.parallel``) XLA's SPMD
+    partitioner gathers a ``top_k``'s operand from every device and ranks all lanes on each, every env step;
+    a sort along the lane axis stays on its device.
+    """
+    order = jnp.argsort(-prio, stable=True)
+    return order[:r]
 
 
 DEFAULT_EPISODE_LENGTH = 1000

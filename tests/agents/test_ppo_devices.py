@@ -35,6 +35,9 @@ SCRIPT = textwrap.dedent(
         state, metrics = update(state)
         state, metrics = update(state)  # the state's shardings round-trip: no second compilation
         assert update._cache_size() == 1
+        if impl == "vmap":  # gradients and statistics all-reduced; nothing (the pool's ranking) gathered
+            hlo = update.lower(state).compile().as_text()
+            assert "all-reduce" in hlo and "all-gather" not in hlo and "all-to-all" not in hlo
         assert len(state.env_state.obs.sharding.device_set) == n
         assert n == 1 or state.env_state.obs.sharding.spec[0] == parallel.LANES
         out[name] = (jax.device_get(state), jax.device_get(metrics), np.asarray(trainer.policy(state)(probe)))

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import envs_mjx
-from envs_mjx.base import RobotEnv, map_lanes, sanitize_action, wrap_for_training
+from envs_mjx.base import RobotEnv, map_lanes, sanitize_action, top_indices, wrap_for_training
 from envs_mjx.config import ConfigError, apply_overrides
 from tests.envs.toy import Toy
 
@@ -267,6 +267,16 @@ def test_pool_reset_groups_are_independent():
     for a, b in zip(out8, out4, strict=True):
         np.testing.assert_allclose(a.obs[:4], b.obs, rtol=1e-6)
         np.testing.assert_array_equal(a.info["pool_reused"][:4], b.info["pool_reused"])
+
+
+def test_top_indices_is_lax_top_k_with_ties_to_the_lower_index():
+    """The pool's ranking (a stable sort, partitioned per device) picks exactly ``lax.top_k``'s lanes."""
+    rng = np.random.default_rng(0)
+    for n, r in ((8, 1), (16, 5), (64, 64), (300, 37)):
+        prio = jnp.asarray(rng.integers(0, 4, n), jnp.int32)  # few values: many ties
+        got = np.asarray(top_indices(prio, r))
+        np.testing.assert_array_equal(got, np.asarray(jax.lax.top_k(prio, r)[1]))
+    np.testing.assert_array_equal(np.asarray(top_indices(jnp.array([1, 3, 3, 0, 3]), 2)), [1, 2])
 
 
 def test_pool_reset_rejects_bad_refresh():
