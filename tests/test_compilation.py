@@ -254,3 +254,37 @@ def test_seed_program_compiles_the_chunk_ahead_only_while_the_programs_are_not_k
         assert len(traced) == 1  # built ahead, from the described state, and used by the call
         for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(want), strict=True):
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+_LANES_PROGRAM = """
+import sys
+import jax, numpy as np
+from jaxrl_robot import compilation, parallel
+assert len(jax.devices()) == 2
+mesh = parallel.lane_mesh(2)
+
+def init(key):  # as a trainer's init: a key in, lanes split over the mesh out
+    return jax.lax.with_sharding_constraint(jax.random.normal(key, (8, 3)), parallel.lane_sharding(mesh))
+
+key = jax.random.PRNGKey(3)  # uncommitted, as the runs make their keys
+expected = np.asarray(jax.jit(init)(key))
+log = compilation.compile_log()
+for run in ("built", "loaded"):
+    mark = log.mark()
+    out = compilation.ProgramCache(sys.argv[1], {"run": 1}).compile("init", init, key)(key)
+    assert len(out.sharding.device_set) == 2
+    np.testing.assert_array_equal(np.asarray(out), expected)
+    assert log.since(mark)["program_cache"][run] == 1, log.since(mark)
+print("OK")
+"""
+
+
+def test_a_program_over_two_devices_made_from_an_uncommitted_key_is_kept_and_loaded(tmp_path):
+    """A key made with ``jax.random.PRNGKey`` sits on the default device without being committed there: the kept
+    program leaves its placement open and calls it replicated over the program's devices, as ``jax.jit`` does
+    (it used to be left unkept on several devices, with a note, and compiled again by every run)."""
+    out = subprocess.run([sys.executable, "-c", _LANES_PROGRAM, str(tmp_path)], cwd=ROOT, env=cpu_env(devices=2),
+                         capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert out.returncode == 0 and "OK" in out.stdout, out.stdout[-2000:] + out.stderr[-3000:]
+    assert "not kept" not in out.stdout + out.stderr
+    assert len(list(tmp_path.glob("init-*.jaxexport"))) == 1

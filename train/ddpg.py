@@ -54,7 +54,7 @@ from jaxrl_robot.types import Trainer
 from train.cli import AlgorithmCLI, exit_process, iterations_per_chunk
 from train.envs import BuiltEnv, env_overrides, episode_length
 from train.options import RunOptions
-from train.presets import ddpg_env_overrides, ddpg_preset
+from train.presets import ddpg_env_overrides, ddpg_preset, off_policy_default_devices
 
 __all__ = ["CLI", "Args", "OffPolicyCLI", "OffPolicyOptions", "build", "chunked", "distributed_flag", "main", "parse"]
 
@@ -123,15 +123,17 @@ def distributed_flag(argv: list[str]) -> bool:
 @dataclass(frozen=True)
 class OffPolicyCLI(AlgorithmCLI):
     """An :class:`~train.cli.AlgorithmCLI` whose preset also depends on ``--distributed``
-    (read ahead of the full parse, like ``--env``); ``preset`` takes ``distributed=``.  Its preset names are
-    DDPG's (``brax`` and ``playground`` among them)."""
+    (read ahead of the full parse, like ``--env``); ``preset`` takes ``distributed=``, and so does the
+    ``--devices`` taken when none is given (:func:`train.presets.off_policy_default_devices`: one device for the
+    single learner).  Its preset names are DDPG's (``brax`` and ``playground`` among them)."""
 
     presets: str = "ddpg"
 
     def parse_with_env(self, argv: list[str] | None = None) -> tuple[Any, BuiltEnv | None]:
         argv = sys.argv[1:] if argv is None else list(argv)
         flag = distributed_flag(argv)
-        ahead = dataclasses.replace(self, preset=lambda args, env: self.preset(args, env, distributed=flag))
+        ahead = dataclasses.replace(self, preset=lambda args, env: self.preset(args, env, distributed=flag),
+                                    default_devices=lambda args: off_policy_default_devices(flag))  # fmt: skip
         return AlgorithmCLI.parse_with_env(ahead, argv)
 
 

@@ -52,6 +52,7 @@ from train.presets.names import (
 from train.presets.off_policy import (
     ddpg_preset,
     distribute,
+    off_policy_default_devices,
 )
 from train.presets.on_policy import (
     ARM_FAST_STEPS,
@@ -103,6 +104,7 @@ __all__ = [
     "ddpg_env_overrides",
     "DDPG_PRESETS",
     "ddpg_preset",
+    "off_policy_default_devices",
     "distribute",
     "lstm_variant",
     "PLAYGROUND_PEERS",
