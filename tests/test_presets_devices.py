@@ -53,7 +53,7 @@ def test_without_devices_the_fast_main_job_takes_one_device_and_every_other_run_
 
 def test_without_devices_the_single_off_policy_learner_takes_one_device_and_distributed_ddpg_every_one():
     """``--devices`` not given: 1 for DDPG's, TD3's and SAC's single learner (its replay and updates are
-    replicated on every device: on two H200s a chunk ran 35-40 s against 1-3 s on one), 0 (every device) for
+    replicated on every device: on two H200s a chunk ran 31-39 s against 0.9 s on one), 0 (every device) for
     distributed DDPG (a worker per device); a given ``--devices`` is kept."""
     import train.ddpg as ddpg_cli
     import train.sac as sac_cli

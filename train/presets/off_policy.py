@@ -185,8 +185,8 @@ def off_policy_default_devices(distributed: bool) -> int:
 
     The single learner splits only the acting lanes over devices; the replay memory and every update are
     replicated, so a second device cannot shorten an update and adds the gathering of each iteration's transitions.
-    Measured on two H200s: DDPG + HER on ``arm7`` and ``arm7_precise`` (``fast``) ran 35–40 s per chunk of
-    1.02 M env steps on two devices against 0.9–2.7 s on one, and reached the target after 41–78 s of training
-    against 1.9–2.7 s (``benchmarks/results/gpu-nvidia_h200-time_to_solve-ddpg-x2.md``). ``--devices N`` still
-    spreads the lanes."""
+    Measured on two H200s: DDPG + HER on ``arm7`` and ``arm7_precise`` (``fast``) ran 31–39 s per chunk of
+    1.02 M env steps on two devices against 0.9 s on one (the first chunk apart), and reached the target after
+    41–78 s of training against 1.9–2.7 s (``benchmarks/results/gpu-nvidia_h200-time_to_solve-ddpg-x2.md``).
+    ``--devices N`` still spreads the lanes."""
     return 0 if distributed or jax.process_count() > 1 else 1
