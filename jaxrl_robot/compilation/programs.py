@@ -180,9 +180,9 @@ class ProgramCache:
                 return jax.jit(fn).lower(*args).compile()
             compile_log().program(False, 0.0, self._save(path, blob, out_tree))
             exported = _deserialize(blob)  # the module a later run loads, so that both compile the same
-        devices = exported.nr_devices
-        compiled = jax.jit(_named(exported.call, name)).lower(*_placed(leaves, devices)).compile()
-        return lambda *a: jax.tree.unflatten(out_tree, compiled(*_placed(jax.tree.leaves(a), devices)))
+        place = _placer(exported.nr_devices)
+        compiled = jax.jit(_named(exported.call, name)).lower(*place(leaves)).compile()
+        return lambda *a: jax.tree.unflatten(out_tree, compiled(*place(jax.tree.leaves(a))))
 
     def jit(self, name: str, fn: Callable) -> CachedJit:
         """A function like ``jax.jit(fn)`` whose program for each argument signature comes from
@@ -300,7 +300,7 @@ def _named(fn: Callable, name: str) -> Callable:
 def _export(fn: Callable, in_tree: Any, leaves: list) -> tuple[bytes, Any]:
     """``(jax.export's serialisation of fn over the flat leaves, fn's output tree)`` for arguments ``in_tree``
     / ``leaves`` of those shapes, dtypes and shardings (an uncommitted array's placement left open:
-    :func:`_placed`). Weak types are left out (the serialisation has none): arguments are traced as, and results
+    :func:`_placer`). Weak types are left out (the serialisation has none): arguments are traced as, and results
     come back as, plain arrays of their dtypes, in every run alike."""
     out_trees = []
 
@@ -310,7 +310,7 @@ def _export(fn: Callable, in_tree: Any, leaves: list) -> tuple[bytes, Any]:
         return out
 
     def spec(x: Any) -> jax.ShapeDtypeStruct:
-        sharding = getattr(x, "sharding", None) if _committed(x) else None  # see _placed
+        sharding = getattr(x, "sharding", None) if _committed(x) else None  # see _placer
         return jax.ShapeDtypeStruct(tuple(getattr(x, "shape", ())), x.dtype, sharding=sharding)
 
     exported = jax.export.export(jax.jit(flat))(*[spec(x) for x in leaves])
@@ -321,14 +321,15 @@ def _committed(x: Any) -> bool:
     return bool(getattr(x, "committed", True))
 
 
-def _placed(leaves: list, devices: int) -> list:
-    """``leaves`` with each uncommitted array (a key made by ``jax.random.PRNGKey``, say) replicated over the lane
-    mesh of a program over ``devices`` devices: ``jax.jit`` would put it there, while its default device alone
-    would not match such a program (exported with that argument's placement open, :func:`_export`)."""
+def _placer(devices: int) -> Callable[[list], list]:
+    """``leaves -> leaves`` with each uncommitted array (a key made by ``jax.random.PRNGKey``, say) replicated over
+    the lane mesh of a program over ``devices`` devices: ``jax.jit`` would put it there, while its default device
+    alone would not match such a program (exported with that argument's placement open, :func:`_export`). One
+    device: the leaves as they are."""
     if devices <= 1:
-        return leaves
+        return lambda leaves: leaves
     replicated = parallel.lane_sharding(parallel.lane_mesh(devices), split=False)
-    return [x if _committed(x) else jax.device_put(x, replicated) for x in leaves]
+    return lambda leaves: [x if _committed(x) else jax.device_put(x, replicated) for x in leaves]
 
 
 def _deserialize(blob: bytes) -> Any:
