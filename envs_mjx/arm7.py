@@ -200,6 +200,11 @@ class Arm7(RobotEnv):
 
     # ----------------------------------------------------------------- sizes
     @property
+    def steps_mjx_physics(self) -> bool:
+        """``pd`` mode steps MJX; ``kinematic`` mode plain-JAX forward kinematics."""
+        return self.config.mode == "pd"
+
+    @property
     def observation_size(self) -> int:
         return 9 if self.config.obs == "goal" else 6
 

@@ -72,6 +72,7 @@ __all__ = [
     "map_lanes",
     "physics_of",
     "sanitize_action",
+    "steps_mjx_physics",
     "with_physics",
     "wrap_for_training",
 ]
@@ -152,6 +153,13 @@ class RobotEnv(Env, abc.ABC):
         return "mjx"
 
     @property
+    def steps_mjx_physics(self) -> bool:
+        """Whether ``reset`` / ``step`` run MuJoCo MJX physics (True here; an env stepping plain JAX, such as
+        ``arm7`` in ``kinematic`` mode, says False): where it is False the trainers map the lanes over several
+        GPUs with ``shard_map`` (``jaxrl_robot.parallel.lane_map_impl``)."""
+        return True
+
+    @property
     def action_scale(self) -> jax.Array:
         """The scale vector C, ``[action_size]`` float32: env action = C * clip(a, -1, 1).
 
@@ -180,6 +188,12 @@ class RobotEnv(Env, abc.ABC):
     @abc.abstractmethod
     def step(self, state: State, action: jax.Array) -> State:
         """Advance one control step with ``action [A]`` in [-1, 1]^A; first :meth:`check_action`."""
+
+
+def steps_mjx_physics(env: Any) -> bool:
+    """``env.steps_mjx_physics`` through any wrappers; True for an env that does not say (brax's, Playground's,
+    a user's env): the lane map that compiles MJX physics on several GPUs is then chosen."""
+    return bool(getattr(env, "steps_mjx_physics", True))
 
 
 def _physics_field(state: Any) -> str:

@@ -448,6 +448,11 @@ class RaceCar(RobotEnv):
     """How a policy is evaluated on this env: laps on every road (:func:`make_lap_test`)."""
 
     @property
+    def steps_mjx_physics(self) -> bool:
+        """The car's dynamics and range finders are plain JAX (no MJX model)."""
+        return False
+
+    @property
     def observation_size(self) -> int:
         """60 (thesis §6.1.1), 36 more with each of ``opponent_speeds`` and ``opponent_offsets``."""
         return 60 + N_SECTORS * (int(self.config.opponent_speeds) + int(self.config.opponent_offsets))

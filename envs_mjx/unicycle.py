@@ -263,6 +263,11 @@ class Unicycle(tracking.TrackingEnv):
 
     # ----------------------------------------------------------------- sizes
     @property
+    def steps_mjx_physics(self) -> bool:
+        """``dynamic`` mode steps MJX; ``kinematic`` mode integrates Eq. 3.18 in plain JAX."""
+        return self.config.mode != "kinematic"
+
+    @property
     def observation_size(self) -> int:
         return 19 if self.config.observation == "extended" else 14
 

@@ -31,7 +31,7 @@ import optax
 from brax.envs.base import Env, State
 from flax import struct
 
-from envs_mjx.base import default_episode_length, wrap_for_training
+from envs_mjx.base import default_episode_length, steps_mjx_physics, wrap_for_training
 from jaxrl_robot import parallel
 from jaxrl_robot.types import Metrics, Policy, Trainer
 from jaxrl_robot.validation import ConfigError, check_counts
@@ -64,6 +64,8 @@ class Setup(NamedTuple):
       steps_per_iteration: env step slots of one iteration (``K · N`` unless the trainer says otherwise).
       iterations_per_update: iterations per ``update`` call (one chunk).
       num_updates: chunks of the whole run, ``ceil(total_iterations / iterations_per_update)``.
+      lane_map: the lane map's implementation (``parallel.lane_map_impl`` of the mesh and of whether the env
+        steps MJX physics, ``envs_mjx.base.steps_mjx_physics``); every ``shard_lanes`` of the run takes it.
     """
 
     mesh: jax.sharding.Mesh
@@ -76,6 +78,7 @@ class Setup(NamedTuple):
     steps_per_iteration: int
     iterations_per_update: int
     num_updates: int
+    lane_map: str
 
     def reset(self, key: jax.Array, params: Callable[[], Any] | None = None) -> State:
         """Env states ``[K]`` of ``split(key, K)``, lanes split over the mesh; ``params`` builds the
@@ -88,11 +91,15 @@ class Setup(NamedTuple):
             return cast_like(state, state)
 
         lanes = parallel.P(parallel.LANES)
-        return parallel.shard_lanes(reset_lanes, self.mesh, lanes, lanes)(jax.random.split(key, self.num_envs))
+        return self.map_lanes(reset_lanes, lanes, lanes)(jax.random.split(key, self.num_envs))
+
+    def map_lanes(self, fn: Callable[..., Any], in_specs: Any, out_specs: Any) -> Callable[..., Any]:
+        """``parallel.shard_lanes`` of ``fn`` over this run's mesh with its :attr:`lane_map`."""
+        return parallel.shard_lanes(fn, self.mesh, in_specs, out_specs, impl=self.lane_map)
 
     def shard(self, chunk: Callable[[Any], tuple[Any, Metrics]], specs: Any) -> Callable[[Any], tuple[Any, Metrics]]:
         """``chunk`` (state -> (state, scalar metrics)) split over the lanes with the state's partition ``specs``."""
-        return parallel.shard_lanes(chunk, self.mesh, in_specs=(specs,), out_specs=(specs, parallel.P()))
+        return self.map_lanes(chunk, (specs,), (specs, parallel.P()))
 
     def trainer(
         self, init: Callable, update: Callable, policy: Callable[[Any], Policy], sample_policy: Callable | None = None
@@ -147,6 +154,7 @@ def setup(
         steps_per_iteration=steps,
         iterations_per_update=iterations_per_update,
         num_updates=math.ceil(config.total_iterations / iterations_per_update),
+        lane_map=parallel.lane_map_impl(mesh, mjx_physics=steps_mjx_physics(env)),
     )
 
 

@@ -15,21 +15,28 @@ split input and combines over devices with the collectives of this module. It is
 of two ways (``impl``; the environment variable ``JAXRL_LANE_MAP`` overrides the default):
 
 * ``"shard_map"`` — ``jax.shard_map``: XLA compiles ``fn`` once per device as a manually
-  partitioned program. The default on a one-device mesh.
+  partitioned program. The default on a one-device mesh, and on several devices for envs that step no MJX
+  physics.
 * ``"vmap"`` — the split inputs are reshaped to ``[D, num_lanes / D, ...]``; ``fn`` is vmapped
   over the leading device axis with ``axis_name="lanes"`` (so ``pmean``/``psum``/``all_gather``/
   ``axis_index`` become reductions and gathers over that axis) and the axis is constrained to
   the mesh, so XLA's automatic SPMD partitioner places one slice per device and turns the
-  reductions into all-reduces. The default on a mesh of several devices.
+  reductions into all-reduces. The default on a mesh of several devices where MJX physics is mapped.
 
-Why ``vmap`` on several devices: with MuJoCo MJX physics inside the body (``arm7`` in ``pd``
-mode, ``unicycle`` in ``dynamic`` mode, ``scara``), XLA:GPU (jax 0.11.2, mujoco-mjx 3.17.0, two
-H200s) ends the process with a segmentation fault while compiling the ``shard_map`` program;
-the same step under ``jax.jit`` with lane shardings compiles and runs, and so do kinematic envs and
-a bare ``shard_map`` + ``psum``. The reproducer is ``python -m benchmarks.multigpu_repro``
-(each variant in its own process; see its results file in ``benchmarks/results/``). Both
-implementations run the same arithmetic, so they agree up to float summation order
-(``tests/agents/test_ppo_devices.py`` checks 4 fake CPU devices of either kind against one).
+Why ``vmap`` on several devices, and only where MJX physics is mapped: with MuJoCo MJX physics inside
+the body (``arm7`` in ``pd`` mode, ``unicycle`` in ``dynamic`` mode, ``scara``), XLA:GPU (jax 0.11.2,
+mujoco-mjx 3.17.0, two H200s) ends the process with a segmentation fault while compiling the
+``shard_map`` program; the same step under ``jax.jit`` with lane shardings compiles and runs, and so do
+kinematic envs and a bare ``shard_map`` + ``psum``. The reproducer is ``python -m benchmarks.multigpu_repro``
+(each variant in its own process; see its results file in ``benchmarks/results/``). But the partitioned
+``vmap`` program can be far slower on GPUs: DDPG's single learner with HER on ``arm7`` in ``kinematic``
+mode ran 25-29 k env-steps/s on two H200s under ``vmap`` against 1.17 M under ``shard_map`` and 1.16 M on
+one H200 (``benchmarks/results/gpu-nvidia_h200x4-lane_map-ddpg.md``). So the trainers take ``shard_map``
+on several devices too wherever the env declares that it steps no MJX physics
+(``envs_mjx.base.steps_mjx_physics``; :func:`lane_map_impl`'s ``mjx_physics``), and ``vmap`` only for MJX
+physics (and for envs that declare nothing). Both implementations run the same arithmetic, so they agree
+up to float summation order (``tests/agents/test_ppo_devices.py`` checks 4 fake CPU devices of either kind
+against one).
 
 Runs over several processes (joining one, a lost process found at once) are :mod:`.multihost`'s, re-exported
 here; this package is the only place in the library that asks JAX about devices and backends.
@@ -127,14 +134,16 @@ def lane_sharding(mesh: Mesh, split: bool = True) -> NamedSharding:
     return NamedSharding(mesh, P(LANES) if split else P())
 
 
-def lane_map_impl(mesh: Mesh, impl: str | None = None) -> str:
-    """The lane-map implementation for ``mesh``: ``impl``, else ``$JAXRL_LANE_MAP``, else by mesh size.
+def lane_map_impl(mesh: Mesh, impl: str | None = None, mjx_physics: bool = True) -> str:
+    """The lane-map implementation for ``mesh``: ``impl``, else ``$JAXRL_LANE_MAP``, else by mesh and env.
 
-    One device: ``"shard_map"``; several: ``"vmap"`` (see the module docstring for why).
+    One device, or a mapped function that steps no MuJoCo MJX physics (``mjx_physics=False``, e.g. an env
+    whose ``steps_mjx_physics`` is False): ``"shard_map"``; MJX physics on several devices: ``"vmap"``
+    (see the module docstring for why).
     """
     impl = impl or os.environ.get(IMPL_ENV, "").strip() or None
     if impl is None:
-        return "shard_map" if mesh.devices.size == 1 else "vmap"
+        return "shard_map" if mesh.devices.size == 1 or not mjx_physics else "vmap"
     if impl not in IMPLS:
         raise ValueError(f"{IMPL_ENV}={impl!r} is not a lane-map implementation; valid: {', '.join(IMPLS)}")
     return impl

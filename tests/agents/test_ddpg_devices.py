@@ -130,6 +130,13 @@ DISTRIBUTED_SCRIPT = textwrap.dedent(
     assert int(s1.updates) == UPDATES_AT_360 + 3 * 2 and int(s1.replay.size) > 0
     assert len(np.unique(np.asarray(s1.replay.tree.leaf_values[: int(s1.replay.size)]))) > 10
     assert parallel.lane_map_impl(parallel.lane_mesh(4)) == "vmap"
+    # the run's lane map: vmap for an env that does not say it steps no MJX physics (the toy env), shard_map
+    # for one that does (arm7 in kinematic mode), on 4 devices; every shard_lanes of the run takes it
+    import envs_mjx
+    from jaxrl_robot.agents import core
+    assert core.setup(cfg, env, parallel.lane_mesh(4)).lane_map == "vmap"
+    arm = envs_mjx.make("arm7", mode="kinematic")
+    assert core.setup(cfg.replace(episode_length=0), arm, parallel.lane_mesh(4)).lane_map == "shard_map"
     assert_runs_agree(out[1], out["vmap"], "vmap", per=True)
     jax.tree.map(lambda x, y: np.testing.assert_allclose(x, y, rtol=1e-5, atol=1e-5, err_msg="collectors"),
                  out[1][0].collectors, out["vmap"][0].collectors)

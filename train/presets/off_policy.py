@@ -188,5 +188,8 @@ def off_policy_default_devices(distributed: bool) -> int:
     Measured on two H200s: DDPG + HER on ``arm7`` and ``arm7_precise`` (``fast``) ran 31–39 s per chunk of
     1.02 M env steps on two devices against 0.9 s on one (the first chunk apart), and reached the target after
     41–78 s of training against 1.9–2.7 s (``benchmarks/results/gpu-nvidia_h200-time_to_solve-ddpg-x2.md``).
+    That slowness was the ``vmap`` lane map's: under ``shard_map``, which the kinematic arm now takes on several
+    devices (``jaxrl_robot.parallel.lane_map_impl``), two H200s ran it at one's speed (1.17 M against 1.16 M
+    env-steps/s, ``benchmarks/results/gpu-nvidia_h200x4-lane_map-ddpg.md``), no faster.
     ``--devices N`` still spreads the lanes."""
     return 0 if distributed or jax.process_count() > 1 else 1

@@ -183,8 +183,8 @@ def make_trainer(config: A2CConfig, env: Env, *, mesh: Mesh | None = None, itera
     else:
         specs = core.state_specs(A2CState, env_state=lanes)
     one_round = partial(round_a3c if asynchronous else round_a2c, w)
-    sharded_chunk = parallel.shard_lanes(
-        partial(chunk, w, one_round, iterations_per_update), run.mesh, in_specs=(specs,),
+    sharded_chunk = run.map_lanes(
+        partial(chunk, w, one_round, iterations_per_update), in_specs=(specs,),
         out_specs=(specs, parallel.P(), lanes, lanes),
     )  # fmt: skip
 

@@ -205,7 +205,7 @@ def _init(w: _Workers, key: jax.Array) -> DistributedState:
 
     keys = jax.random.split(jax.random.fold_in(key, 1), config.collect_workers * config.collect_lanes)
     lanes, same = parallel.P(parallel.LANES), parallel.P()
-    collectors = parallel.shard_lanes(start, s.run.mesh, (lanes, same), lanes)(keys, base)
+    collectors = s.run.map_lanes(start, (lanes, same), lanes)(keys, base)
     return DistributedState(**fields, collectors=collectors)
 
 

@@ -201,7 +201,7 @@ def init_state(s: Setup, key: jax.Array) -> OffPolicyState:
     )
     imitation = s.imitation.init(nets["actor_params"], obs_size, action_size) if s.imitation else ((), ())
     lanes = parallel.P(parallel.LANES)
-    env_state, noise_state = parallel.shard_lanes(s.acting.reset, s.run.mesh, (lanes,), (lanes, lanes))(
+    env_state, noise_state = s.run.map_lanes(s.acting.reset, (lanes,), (lanes, lanes))(
         jax.random.split(k_env, s.config.num_envs)
     )
     return OffPolicyState(
