@@ -29,15 +29,24 @@ workers average their gradients into one update, so more devices at the same per
 keep the update rate at best and multiply the transitions learned from per update; the table
 gives both ratios: updates/s and learner transitions/s (updates/s × transitions per update).
 
+``--lane-maps auto vmap shard_map`` times every case under each lane map of ``jaxrl_robot.parallel`` (``auto``:
+the run's own choice), e.g. the single learner on the kinematic arm on two GPUs::
+
+    CUDA_VISIBLE_DEVICES=0,1 python -m benchmarks.ddpg_throughput --env arm7 --env-config mode=kinematic \
+        --kinds single --lanes 1024 --lane-maps vmap shard_map
+
 Results: ``benchmarks/results/<device>-ddpg_throughput.json`` and ``.md``.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import os
 import statistics
 import time
+from collections.abc import Iterator
 from typing import Any
 
 import jax
@@ -48,6 +57,8 @@ from benchmarks.arguments import positive
 from benchmarks.timing import compile_and_time
 from benchmarks.tracking_report import pairs
 from benchmarks.train_throughput import RESULTS, device_label
+from envs_mjx.base import steps_mjx_physics
+from jaxrl_robot import parallel
 from jaxrl_robot.agents.ddpg import DDPGConfig, make_trainer
 
 GOAL_STEPS, GOAL_UPDATES = 1_000_000, 2_000
@@ -70,11 +81,30 @@ def config_for(kind: str, lanes: int, args: argparse.Namespace) -> DDPGConfig:
                         collect_workers=w, collect_lanes=lanes // (2 * w), fetch_every=5)  # fmt: skip
 
 
-def bench(kind: str, lanes: int, args: argparse.Namespace) -> dict[str, Any]:
-    """Time one case; returns its settings and figures."""
+@contextlib.contextmanager
+def lane_map(impl: str) -> Iterator[None]:
+    """Inside: the trainers built take lane map ``impl`` (``auto``: the run's own choice,
+    ``parallel.lane_map_impl``), through ``$JAXRL_LANE_MAP``; the variable is restored after."""
+    before = os.environ.get(parallel.IMPL_ENV)
+    if impl == "auto":
+        os.environ.pop(parallel.IMPL_ENV, None)
+    else:
+        os.environ[parallel.IMPL_ENV] = impl
+    try:
+        yield
+    finally:
+        os.environ.pop(parallel.IMPL_ENV, None)
+        if before is not None:
+            os.environ[parallel.IMPL_ENV] = before
+
+
+def bench(kind: str, lanes: int, args: argparse.Namespace, impl: str = "auto") -> dict[str, Any]:
+    """Time one case under lane map ``impl`` (``--lane-maps``); returns its settings and figures."""
     env = envs_mjx.make(args.env, **pairs(args.env_config))
     config = config_for(kind, lanes, args)
-    trainer = make_trainer(config, env, iterations_per_update=args.iterations)
+    with lane_map(impl):
+        trainer = make_trainer(config, env, iterations_per_update=args.iterations)
+        used = parallel.lane_map_impl(parallel.lane_mesh(), mjx_physics=steps_mjx_physics(env))
     state = jax.block_until_ready(jax.jit(trainer.init)(jax.random.PRNGKey(0)))
     before = int(state.updates)
     compile_s, times, state = compile_and_time(trainer.update, state, args.repeats, donate=True)
@@ -85,7 +115,7 @@ def bench(kind: str, lanes: int, args: argparse.Namespace) -> dict[str, Any]:
         "kind": kind, "lanes": config.lanes, "num_envs": config.num_envs, "unroll": args.unroll,
         "updates_per_iteration": args.updates, "transitions_per_update": args.sync_workers * args.batch,
         "sync_workers": args.sync_workers if kind == "distributed" else 1, "batch": args.batch,
-        "iterations_per_call": args.iterations, "devices": jax.device_count(), "compile_s": compile_s,
+        "iterations_per_call": args.iterations, "devices": jax.device_count(), "lane_map": used, "compile_s": compile_s,
         "call_s": med, "call_s_all": times, "env_steps_per_s": trainer.env_steps_per_update / med,
         "updates_per_s": updates_per_call / med, "updates_per_call": updates_per_call,
     }  # fmt: skip
@@ -101,19 +131,20 @@ def to_markdown(result: dict[str, Any]) -> str:
         "synchronous workers, half for the collecting workers. Goals: ≥ 1 M env-steps/s with ≥ 2 000 "
         "updates/s (4 × 32 transitions) on one H200.",
         "",
-        "| kind | lanes | unroll | updates / iteration | transitions / update | env steps/s | updates/s "
+        "| kind | lane map | lanes | unroll | updates / iteration | transitions / update | env steps/s | updates/s "
         "| × single (steps/s) | × single (updates/s) | compile s |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
-    single = {(r["lanes"], r["updates_per_iteration"]): r for r in result["runs"] if r["kind"] == "single"}
+    single = {(r["lanes"], r["updates_per_iteration"], r.get("lane_map")): r for r in result["runs"]
+              if r["kind"] == "single"}  # fmt: skip
     for r in result["runs"]:
-        peer = single.get((r["lanes"], r["updates_per_iteration"]))
+        peer = single.get((r["lanes"], r["updates_per_iteration"], r.get("lane_map")))
         ratio_s = f"{r['env_steps_per_s'] / peer['env_steps_per_s']:.2f}" if peer and peer is not r else "—"
         ratio_u = f"{r['updates_per_s'] / peer['updates_per_s']:.2f}" if peer and peer is not r else "—"
         goal = r["env_steps_per_s"] >= GOAL_STEPS and r["updates_per_s"] >= GOAL_UPDATES
         steps = f"{r['env_steps_per_s']:,.0f}"
         lines.append(
-            f"| {r['kind']} | {r['lanes']} | {r['unroll']} | {r['updates_per_iteration']} "
+            f"| {r['kind']} | {r.get('lane_map', '—')} | {r['lanes']} | {r['unroll']} | {r['updates_per_iteration']} "
             f"| {r['transitions_per_update']} | {'**' + steps + '**' if goal else steps} "
             f"| {r['updates_per_s']:,.0f} | {ratio_s} | {ratio_u} | {r['compile_s']:.1f} |"
         )
@@ -197,6 +228,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--iterations", type=positive, default=10 if on_gpu else 2, help="iterations per timed call")
     p.add_argument("--repeats", type=positive, default=5 if on_gpu else 3)
     p.add_argument("--set", nargs="*", default=[], help="further DDPG fields FIELD=VALUE")
+    p.add_argument("--lane-maps", nargs="+", default=["auto"], choices=["auto", *parallel.IMPLS],
+                   help="lane maps to time each case under (auto: the run's own choice, "
+                   "jaxrl_robot.parallel.lane_map_impl; vmap / shard_map through JAXRL_LANE_MAP)")  # fmt: skip
     provenance.add_args(p)
     p.add_argument("--baseline", help="the JSON of a run on fewer devices: adds the scaling table")
     p.add_argument("--out", default=RESULTS)
@@ -213,11 +247,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     for lanes in args.lanes:
         for updates in args.updates:
             for kind in args.kinds:
-                row = bench(kind, lanes, argparse.Namespace(**{**vars(args), "updates": updates}))
-                result["runs"].append(row)
-                print(kind, lanes, updates, f"{row['env_steps_per_s']:,.0f} steps/s",
-                      f"{row['updates_per_s']:,.0f} updates/s", flush=True)  # fmt: skip
-                provenance.write(stem, result, to_markdown(result), echo=True)
+                for impl in args.lane_maps:
+                    row = bench(kind, lanes, argparse.Namespace(**{**vars(args), "updates": updates}), impl)
+                    result["runs"].append(row)
+                    print(kind, row["lane_map"], lanes, updates, f"{row['env_steps_per_s']:,.0f} steps/s",
+                          f"{row['updates_per_s']:,.0f} updates/s", flush=True)  # fmt: skip
+                    provenance.write(stem, result, to_markdown(result), echo=True)
     return result
 
 

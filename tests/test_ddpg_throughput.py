@@ -1,10 +1,13 @@
-"""benchmarks.ddpg_throughput's scaling table: rows paired by work per device, ratios by hand."""
+"""benchmarks.ddpg_throughput's tables: rows paired by work per device and by lane map, ratios by hand; the lane map
+set per case."""
 
 import json
+import os
 
 import pytest
 
-from benchmarks.ddpg_throughput import load_baseline, scaling_lines, scaling_rows
+from benchmarks.ddpg_throughput import lane_map, load_baseline, scaling_lines, scaling_rows, to_markdown
+from jaxrl_robot import parallel
 
 
 def _row(kind, lanes, workers, updates_per_s, steps_per_s, updates=32, batch=32):
@@ -38,3 +41,28 @@ def test_baseline_must_be_a_ddpg_throughput_result(tmp_path):
         load_baseline(str(path))
     with pytest.raises(SystemExit, match="--baseline .*missing.json"):
         load_baseline(str(tmp_path / "missing.json"))
+
+
+def test_each_lane_map_is_set_for_the_case_and_the_variable_restored_after(monkeypatch):
+    monkeypatch.setenv(parallel.IMPL_ENV, "vmap")
+    with lane_map("shard_map"):
+        assert os.environ[parallel.IMPL_ENV] == "shard_map"
+    with lane_map("auto"):
+        assert parallel.IMPL_ENV not in os.environ
+    assert os.environ[parallel.IMPL_ENV] == "vmap"
+    monkeypatch.delenv(parallel.IMPL_ENV)
+    with lane_map("vmap"):
+        assert parallel.lane_map_impl(parallel.lane_mesh(1)) == "vmap"
+    assert parallel.IMPL_ENV not in os.environ
+
+
+def test_the_table_compares_a_row_with_the_single_learner_of_its_own_lane_map():
+    rows = [{**_row("single", 1024, 1, 2000.0, 1.0e6), "lane_map": "shard_map"},
+            {**_row("single", 1024, 1, 50.0, 2.5e4), "lane_map": "vmap"},
+            {**_row("distributed", 1024, 4, 1000.0, 5.0e5), "lane_map": "vmap"}]  # fmt: skip
+    for r in rows:
+        r.update(unroll=4, compile_s=1.0)
+    result = {"env": "arm7", "device": "gpu", "devices": 2, "command": "c", "commit": "abc", "jax": "0", "date": "d",
+              "repeats": 1, "iterations": 1, "runs": rows}  # fmt: skip
+    lines = [line for line in to_markdown(result).splitlines() if line.startswith("| distributed")]
+    assert lines == ["| distributed | vmap | 1024 | 4 | 32 | 128 | 500,000 | 1,000 | 20.00 | 20.00 | 1.0 |"]
