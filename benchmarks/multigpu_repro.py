@@ -13,7 +13,12 @@ Variants:
   jit_sharded     ``jax.jit`` with ``NamedSharding`` in/out shardings and no shard_map;
   shard_map+<F>   shard_map with one XLA flag ``F`` added to ``XLA_FLAGS`` (e.g. autotune off);
   shard_map_no_shardy   shard_map with ``jax_use_shardy_partitioner=False``;
-  trainer         ``parallel.shard_lanes`` with its default implementation for the mesh.
+  trainer         ``parallel.shard_lanes`` with its default implementation for the mesh;
+  kinematic       shard_map of ``arm7`` in ``kinematic`` mode (plain JAX, no MJX: the control that compiles);
+  unicycle        shard_map of ``unicycle`` in ``dynamic`` mode (MJX, another model);
+  cholesky        shard_map of no env: a batched Cholesky factorisation and solve of 7 x 7 systems per lane
+                  and step, as MJX's forward dynamics factorises the mass matrix (is the linear-algebra
+                  custom call what does not compile?).
 """
 
 from __future__ import annotations
@@ -49,13 +54,27 @@ def child(variant: str, lanes: int, steps: int) -> None:
     from envs_mjx.base import wrap_for_training
     from jaxrl_robot import parallel
 
-    env = envs_mjx.make("arm7", mode="pd")
+    env = {"kinematic": lambda: envs_mjx.make("arm7", mode="kinematic"),
+           "unicycle": lambda: envs_mjx.make("unicycle", mode="dynamic")}.get(variant, lambda: envs_mjx.make("arm7"))()
     wrapped = wrap_for_training(env, episode_length=50)
     n_dev = 1 if variant == "one_device" else len(jax.devices())
     mesh = parallel.lane_mesh(n_dev)
     act = jnp.full((env.action_size,), 0.1, jnp.float32)
 
+    def factorise(keys):  # [lanes] keys -> ([lanes, 7] solutions, [steps] mean)
+        a = jax.vmap(lambda k: jax.random.normal(k, (7, 7)))(keys)
+        m = a @ jnp.swapaxes(a, -1, -2) + 7.0 * jnp.eye(7)
+
+        def body(x, _):
+            x = jax.scipy.linalg.cho_solve(jax.scipy.linalg.cho_factor(m), x + 1.0)
+            return x, jnp.mean(x)
+
+        x, r = jax.lax.scan(body, jnp.zeros(m.shape[:2]), None, length=steps)
+        return x, parallel.pmean(r)
+
     def roll(keys):
+        if variant == "cholesky":
+            return factorise(keys)
         state = wrapped.reset(keys)
 
         def body(s, _):
