@@ -29,22 +29,26 @@ import numpy as np
 from benchmarks import provenance
 from benchmarks.arguments import positive
 from benchmarks.train_throughput import RESULTS, device_label
+from envs_mjx.base import steps_mjx_physics
 from jaxrl_robot import parallel
 
 CASES = ["ppo:arm7", "ppo:unicycle", "ppo:scara", "a2c:arm7", "a3c:arm7", "ddpg:arm7"]
 
 
-def _build(algo: str, env: str, devices: int, extra: list[str], preset: str = "fast") -> tuple[Any, dict[str, Any]]:
+def _build(
+    algo: str, env: str, devices: int, extra: list[str], preset: str = "fast"
+) -> tuple[Any, Any, dict[str, Any]]:
+    """``(env, trainer, config)`` of ``train.<algo>``'s command line for ``env`` on ``devices`` devices."""
     module = importlib.import_module("train.a2c" if algo in ("a2c", "a3c") else f"train.{algo}")
     # --chunks 10**9: one training iteration (rollout + updates; one cycle for DDPG) per chunk call
     argv = ["--env", env, "--preset", preset, "--devices", str(devices), "--chunks", str(10**9), *extra]
     if algo in ("a2c", "a3c"):
         args = module.parse(argv, algo)
-        _, trainer, config = module.build(args, algo)
+        built, trainer, config = module.build(args, algo)
     else:
         args = module.parse(argv)
-        _, trainer, config = module.build(args)
-    return trainer, config
+        built, trainer, config = module.build(args)
+    return built, trainer, config
 
 
 def _params(state: Any) -> dict[str, np.ndarray]:
@@ -63,7 +67,7 @@ def run_case(case: str, chunks: int, extra: list[str], preset: str = "fast") -> 
     res: dict[str, Any] = {"case": case, "devices": [1, n_all]}
     outs = {}
     for d in (1, n_all):
-        trainer, config = _build(algo, env, d, extra, preset)
+        built, trainer, config = _build(algo, env, d, extra, preset)
         init, update = jax.jit(trainer.init), jax.jit(trainer.update)
         state = init(jax.random.PRNGKey(0))
         t0 = time.perf_counter()
@@ -73,7 +77,7 @@ def run_case(case: str, chunks: int, extra: list[str], preset: str = "fast") -> 
             last = time.perf_counter() - t
         res[f"wall_s_{d}"] = time.perf_counter() - t0
         res[f"steps_per_s_{d}"] = trainer.env_steps_per_update / last
-        res[f"lane_map_{d}"] = parallel.lane_map_impl(parallel.lane_mesh(d))
+        res[f"lane_map_{d}"] = parallel.lane_map_impl(parallel.lane_mesh(d), mjx_physics=steps_mjx_physics(built))
         outs[d] = (_params(state), {k: float(v) for k, v in jax.device_get(metrics).items()})
     (p1, m1), (pn, mn) = outs[1], outs[n_all]
     res["max_param_diff"] = max(float(np.max(np.abs(p1[k] - pn[k]))) for k in p1)
