@@ -10,9 +10,10 @@ N = 16, 4 actor + 4 critic mini-batch updates, 2 x 200 networks) is compiled apa
 median of ``--repeats`` chunk calls of ``--chunk-iters`` iterations (``block_until_ready``).
 
 * ``--one``: lane counts on one GPU (is throughput non-decreasing in the lanes?);
-* ``--weak``: lanes per GPU; each runs on 1 GPU with L lanes and on every GPU with L x GPUs lanes;
+* ``--weak``: lanes per GPU; each runs on 1 GPU with L lanes and on D GPUs with L x D lanes, for each D of
+  ``--device-counts`` (default: every GPU);
   efficiency = steps/s(D GPUs) / (D x steps/s(1 GPU));
-* ``--strong``: total lanes, on 1 GPU and on all GPUs;
+* ``--strong``: total lanes, on 1 GPU and on each of ``--device-counts``;
 * ``--lane-group``: our PPO also with the env stepped in groups of this many lanes per device
   (``PPOConfig.lane_group``) wherever the lanes per device exceed it (0: never);
 * ``--brax``: lane counts of brax's PPO on one GPU (``benchmarks/peers/brax_ppo.py``; it uses every
@@ -45,6 +46,7 @@ from benchmarks.train_throughput import (
     device_label,
     markdown_head,
 )
+from envs_mjx.base import steps_mjx_physics
 from jaxrl_robot import parallel
 
 ENV_CONFIGS = {"arm7": {"mode": "pd"}, "unicycle": {"mode": "dynamic"}, "scara": {}}
@@ -54,17 +56,36 @@ def _row(env_name: str, kind: str, devices: int, r: dict[str, Any]) -> dict[str,
     return {"env": env_name, "kind": kind, "devices": devices, **r}
 
 
-def run_ours(env_name: str, args: argparse.Namespace) -> list[dict[str, Any]]:
-    env = envs_mjx.make(env_name, **ENV_CONFIGS[env_name])
-    n_all = len(jax.devices())
+def device_counts(requested: list[int], available: int) -> list[int]:
+    """The device counts of the several-device rows: ``requested`` (``--device-counts``; default every device),
+    each at most ``available`` (a larger one is a one-line error), 1 left out (the one-device rows are always run)."""
+    counts = requested or [available]
+    too_many = [d for d in counts if d > available]
+    if too_many:
+        raise SystemExit(f"error: --device-counts {too_many[0]}: only {available} device(s) visible")
+    return sorted({d for d in counts if d > 1})
+
+
+def plan_cases(args: argparse.Namespace, counts: list[int]) -> list[tuple]:
+    """``(kind, devices, lanes[, lane group])`` cases in order: ``--one`` on one device, ``--weak`` lanes per
+    device on 1 and each of ``counts`` devices, ``--strong`` lanes in all on 1 and each of ``counts``, then the
+    lane-group variants of the cases with more lanes per device than ``--lane-group``."""
     plan: list[tuple] = [("one", 1, k) for k in args.one]
     for per in args.weak:
-        plan += [("weak", 1, per)] + ([("weak", n_all, per * n_all)] if n_all > 1 else [])
+        plan += [("weak", 1, per)] + [("weak", d, per * d) for d in counts]
     for total in args.strong:
-        plan += [("strong", 1, total)] + ([("strong", n_all, total)] if n_all > 1 else [])
+        plan += [("strong", 1, total)] + [("strong", d, total) for d in counts]
     if args.lane_group:
         plan += [(f"{kind}, lane group {args.lane_group}", devs, lanes, args.lane_group) for kind, devs, lanes in plan
                  if lanes // devs > args.lane_group]  # fmt: skip
+    return plan
+
+
+def run_ours(env_name: str, args: argparse.Namespace, on_row: Any = None) -> list[dict[str, Any]]:
+    """Our PPO over :func:`plan_cases` (each case measured once however many kinds name it); ``on_row(rows)``
+    after each row (the partial results are written as they come)."""
+    env = envs_mjx.make(env_name, **ENV_CONFIGS[env_name])
+    plan = plan_cases(args, device_counts(args.device_counts, len(jax.devices())))
     done: dict[tuple[int, int, int], dict[str, Any]] = {}
     rows = []
     for kind, devs, lanes, *group in plan:
@@ -74,13 +95,15 @@ def run_ours(env_name: str, args: argparse.Namespace) -> list[dict[str, Any]]:
             try:
                 r = bench_ours(env, lanes, args.unroll, args.chunk_iters, args.repeats, args.updates,
                                args.reset_refresh, mesh=mesh, lane_group=group)  # fmt: skip
-                r["lane_map"] = parallel.lane_map_impl(mesh)
+                r["lane_map"] = parallel.lane_map_impl(mesh, mjx_physics=steps_mjx_physics(env))
             except Exception as e:  # e.g. out of memory: recorded, the sweep goes on
                 r = {"impl": "jaxrl_robot", "lanes": lanes, "steps_per_s": float("nan"), "error": repr(e)[:400]}
             done[(devs, lanes, group)] = r
             print(f"{env_name:9s} ours {devs} GPU(s) lanes={lanes:7d} group={group:6d} {r['steps_per_s']:14,.0f} "
                   f"steps/s compile {r.get('compile_s', float('nan')):.1f}s", flush=True)  # fmt: skip
         rows.append(_row(env_name, kind, devs, done[(devs, lanes, group)]))
+        if on_row is not None:
+            on_row(rows)
     return rows
 
 
@@ -146,6 +169,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--repeats", type=positive, default=3)
     p.add_argument("--reset-refresh", type=float, default=0.125)
     p.add_argument("--lane-group", type=nonnegative, default=0)
+    p.add_argument("--device-counts", type=positive, nargs="*", default=[],
+                   help="device counts of the several-device rows (default: every device), e.g. 2 4")  # fmt: skip
     p.add_argument("--out", default=RESULTS)
     p.add_argument("--brax-only", default="", help=argparse.SUPPRESS)
     provenance.add_args(p)
@@ -157,12 +182,30 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             json.dump(rows, f)
         return {"runs": rows}
     os.makedirs(args.out, exist_ok=True)
-    runs = [r for e in args.envs for r in run_ours(e, args)]
+    device_counts(args.device_counts, len(jax.devices()))  # a count beyond the devices stops before any run
+    runs: list[dict[str, Any]] = []
+    stem = os.path.join(args.out, f"{device_label()}x{len(jax.devices())}-scaling")
+
+    def write(rows: list[dict[str, Any]]) -> dict[str, Any]:
+        result = _result(args, prov, rows)
+        provenance.write(stem, result, to_markdown(result))
+        return result
+
+    for e in args.envs:  # the file is rewritten after every row: a sweep stopped half-way keeps what it measured
+        before = list(runs)
+        runs = before + run_ours(e, args, on_row=lambda rows, before=before: write(before + rows))
     if args.brax:
         runs += _brax_in_subprocess(args, os.path.join(args.out, ".brax_rows.json"))
         if os.path.exists(os.path.join(args.out, ".brax_rows.json")):
             os.remove(os.path.join(args.out, ".brax_rows.json"))
-    result = {
+    result = write(runs)
+    print(to_markdown(result))
+    return result
+
+
+def _result(args: argparse.Namespace, prov: dict[str, Any], runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """The results record of ``runs`` (this invocation's settings and provenance)."""
+    return {
         "benchmark": "scaling",
         "provenance": prov,
         "device": device_label(),
@@ -175,12 +218,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "chunk_iters": args.chunk_iters,
         "repeats": args.repeats,
         "reset_refresh": args.reset_refresh,
+        "device_counts": device_counts(args.device_counts, len(jax.devices())),
         "env_configs": {e: ENV_CONFIGS[e] for e in args.envs},
         "runs": runs,
     }
-    stem = os.path.join(args.out, f"{result['device']}x{result['gpus']}-scaling")
-    provenance.write(stem, result, to_markdown(result), echo=True)
-    return result
 
 
 if __name__ == "__main__":
