@@ -105,6 +105,8 @@ class Arm7Config:
       impl: MJX backend of ``pd`` mode, ``"jax"`` (MJX's JAX implementation) or ``"warp"`` (MuJoCo Warp,
         ``pip install -e ".[warp]"``; when it pays: ``envs_mjx.backend``). ``kinematic`` mode steps no
         physics and takes only ``"jax"``. ("jax")
+      jacobian: how MJX factorises the mass matrix in ``pd`` mode, ``"auto"``, ``"dense"`` or ``"sparse"``
+        (:data:`envs_mjx.backend.JACOBIANS`). ("auto")
     """
 
     mode: str = "pd"
@@ -128,6 +130,7 @@ class Arm7Config:
     sample_tries: int = 16
     sample_fraction: float = 0.5
     impl: str = "jax"
+    jacobian: str = "auto"
 
     def validate(self) -> None:
         """Raise ``ConfigError`` naming the first invalid field and what is allowed."""
@@ -152,6 +155,7 @@ class Arm7Config:
         _check_int("sample_tries", self.sample_tries, 1)
         check_range("sample_fraction", self.sample_fraction, 0.0, 1.0, lo_open=True)
         backend.check_impl(self.impl, self.mode, ("pd",))
+        check_choice("jacobian", self.jacobian, backend.JACOBIANS)
 
 
 def _check_int(field: str, value: Any, lo: int) -> None:
@@ -180,6 +184,7 @@ class Arm7(RobotEnv):
         super().__init__(config, **overrides)
         cfg = self.config
         self.mj_model = mujoco.MjModel.from_xml_path(str(ASSET))
+        backend.set_jacobian(self.mj_model, cfg.jacobian)
         self.mjx_model = backend.put_model(self.mj_model, cfg.impl)
         self.chain = ik.chain_from_model(self.mj_model, "ee")
         self.ee_site = mujoco.mj_name2id(self.mj_model, mujoco.mjtObj.mjOBJ_SITE, "ee")

@@ -33,10 +33,26 @@ from mujoco import mjx
 
 from envs_mjx.config import ConfigError, check_choice
 
-__all__ = ["IMPLS", "WarpMissingError", "check_impl", "has_shared", "lane_map", "make_data", "put_model", "select"]
+__all__ = [
+    "IMPLS", "JACOBIANS", "WarpMissingError", "check_impl", "has_shared", "lane_map", "make_data", "put_model",
+    "select", "set_jacobian",
+]  # fmt: skip
 
 IMPLS = ("jax", "warp")
 """Values of the env setting ``impl``: MJX's JAX implementation (default) or MuJoCo Warp."""
+
+JACOBIANS = ("auto", "dense", "sparse")
+"""Values of the env setting ``jacobian`` (MuJoCo's ``opt.jacobian``, which MJX's JAX implementation reads): ``auto``
+(MuJoCo's and MJX's default: dense below 60 degrees of freedom off a TPU), ``dense`` (the mass matrix factorised with
+``jax.scipy.linalg.cho_factor``, a linear-algebra library call on a GPU) or ``sparse`` (factorised with plain JAX
+operations over the kinematic tree)."""
+
+
+def set_jacobian(mj_model: mujoco.MjModel, jacobian: str) -> None:
+    """Set ``mj_model.opt.jacobian`` to the env setting ``jacobian`` (:data:`JACOBIANS`) before :func:`put_model`."""
+    check_choice("jacobian", jacobian, JACOBIANS)
+    mj_model.opt.jacobian = {"auto": mujoco.mjtJacobian.mjJAC_AUTO, "dense": mujoco.mjtJacobian.mjJAC_DENSE,
+                             "sparse": mujoco.mjtJacobian.mjJAC_SPARSE}[jacobian]  # fmt: skip
 
 
 class WarpMissingError(ConfigError):

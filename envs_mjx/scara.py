@@ -113,6 +113,8 @@ class ScaraConfig:
     impl: str = "jax"
     """MJX backend: 'jax' (MJX's JAX implementation) or 'warp' (MuJoCo Warp, pip install -e ".[warp]";
     :mod:`envs_mjx.backend`)."""
+    jacobian: str = "auto"
+    """How MJX factorises the mass matrix: 'auto', 'dense' or 'sparse' (:mod:`envs_mjx.backend`)."""
 
     def validate(self) -> None:
         check_choice("observation", self.observation, OBSERVATIONS)
@@ -143,6 +145,7 @@ class ScaraConfig:
         check_range("obs_error_scale", self.obs_error_scale, 0.0, lo_open=True)
         tracking.check_episode(self)
         backend.check_impl(self.impl)
+        check_choice("jacobian", self.jacobian, backend.JACOBIANS)
 
     def resolved(self) -> ScaraConfig:
         """This config with ``duration`` and ``max_steps`` filled in (and checked to agree)."""

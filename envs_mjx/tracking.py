@@ -82,6 +82,7 @@ class TrackingEnv(RobotEnv):
         super().__init__(config, **overrides)
         self.config = self.config.resolved()
         self.mj_model = self.build_model(self.config)
+        backend.set_jacobian(self.mj_model, self.config.jacobian)
         self.mjx_model = backend.put_model(self.mj_model, self.config.impl)
         self._data0 = backend.make_data(self.mj_model, self.mjx_model)
 

@@ -149,6 +149,8 @@ class UnicycleConfig:
     impl: str = "jax"
     """MJX backend of 'dynamic': 'jax' (MJX's JAX implementation) or 'warp' (MuJoCo Warp, pip install -e
     ".[warp]"; :mod:`envs_mjx.backend`). 'kinematic' steps no physics and takes only 'jax'."""
+    jacobian: str = "auto"
+    """How MJX factorises the mass matrix in 'dynamic': 'auto', 'dense' or 'sparse' (:mod:`envs_mjx.backend`)."""
 
     def validate(self) -> None:
         check_choice("mode", self.mode, MODES)
@@ -171,6 +173,7 @@ class UnicycleConfig:
                 raise ConfigError(f"obs_pos_scale={self.obs_pos_scale!r} must be positive in every element")
         tracking.check_episode(self)
         backend.check_impl(self.impl, self.mode, ("dynamic",))
+        check_choice("jacobian", self.jacobian, backend.JACOBIANS)
 
     def resolved(self) -> UnicycleConfig:
         """This config with ``duration``, ``max_steps`` and ``action_scale`` filled in."""
