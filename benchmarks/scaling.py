@@ -2,6 +2,8 @@
 
     python -m benchmarks.scaling                          # arm7 pd and unicycle, sizes for the machine
     python -m benchmarks.scaling --envs arm7 --one 8192 32768 --weak 16384 32768 --strong 65536
+    python -m benchmarks.scaling --envs arm7 --one --weak 4096 32768 --strong 131072 --brax --device-counts 2 4 \
+        --env-config jacobian=sparse --lane-maps vmap shard_map
 
 One process drives every configuration: a 1-device mesh (``parallel.lane_mesh(1)``) for the
 one-GPU rows, a 2-device mesh for the two-GPU rows (lanes split over the mesh by
@@ -16,6 +18,9 @@ median of ``--repeats`` chunk calls of ``--chunk-iters`` iterations (``block_unt
 * ``--strong``: total lanes, on 1 GPU and on each of ``--device-counts``;
 * ``--lane-group``: our PPO also with the env stepped in groups of this many lanes per device
   (``PPOConfig.lane_group``) wherever the lanes per device exceed it (0: never);
+* ``--lane-maps``: the lane maps of ``jaxrl_robot.parallel`` the several-device cases run under (``auto``: the
+  run's own, ``vmap``, ``shard_map``; each one-device case runs once under its own, the baseline);
+* ``--env-config KEY=VALUE``: env settings over the benchmark's (e.g. ``jacobian=sparse``);
 * ``--brax``: lane counts of brax's PPO on one GPU (``benchmarks/peers/brax_ppo.py``; it uses every
   visible device, so it runs on a 1-GPU process: ``CUDA_VISIBLE_DEVICES`` = the first GPU).
 
@@ -38,6 +43,8 @@ import jax
 import envs_mjx
 from benchmarks import provenance
 from benchmarks.arguments import nonnegative, positive
+from benchmarks.ddpg_throughput import lane_map
+from benchmarks.tracking_report import pairs
 from benchmarks.train_throughput import (
     RESULTS,
     SEEDS,
@@ -84,31 +91,39 @@ def plan_cases(args: argparse.Namespace, counts: list[int]) -> list[tuple]:
 def run_ours(env_name: str, args: argparse.Namespace, on_row: Any = None) -> list[dict[str, Any]]:
     """Our PPO over :func:`plan_cases` (each case measured once however many kinds name it); ``on_row(rows)``
     after each row (the partial results are written as they come)."""
-    env = envs_mjx.make(env_name, **ENV_CONFIGS[env_name])
+    env = envs_mjx.make(env_name, **env_config(env_name, args))
     plan = plan_cases(args, device_counts(args.device_counts, len(jax.devices())))
-    done: dict[tuple[int, int, int], dict[str, Any]] = {}
+    done: dict[tuple[int, int, int, str], dict[str, Any]] = {}
     rows = []
     for kind, devs, lanes, *group in plan:
         group = group[0] if group else 0
-        if (devs, lanes, group) not in done:
-            mesh = parallel.lane_mesh(devs)
-            try:
-                r = bench_ours(env, lanes, args.unroll, args.chunk_iters, args.repeats, args.updates,
-                               args.reset_refresh, mesh=mesh, lane_group=group)  # fmt: skip
-                r["lane_map"] = parallel.lane_map_impl(mesh, mjx_physics=steps_mjx_physics(env))
-            except Exception as e:  # e.g. out of memory: recorded, the sweep goes on
-                r = {"impl": "jaxrl_robot", "lanes": lanes, "steps_per_s": float("nan"), "error": repr(e)[:400]}
-            done[(devs, lanes, group)] = r
-            print(f"{env_name:9s} ours {devs} GPU(s) lanes={lanes:7d} group={group:6d} {r['steps_per_s']:14,.0f} "
-                  f"steps/s compile {r.get('compile_s', float('nan')):.1f}s", flush=True)  # fmt: skip
-        rows.append(_row(env_name, kind, devs, done[(devs, lanes, group)]))
-        if on_row is not None:
-            on_row(rows)
+        for impl in ("auto",) if devs == 1 else args.lane_maps:  # one device: its own lane map, the baseline
+            if (devs, lanes, group, impl) not in done:
+                mesh = parallel.lane_mesh(devs)
+                try:
+                    with lane_map(impl):
+                        r = bench_ours(env, lanes, args.unroll, args.chunk_iters, args.repeats, args.updates,
+                                       args.reset_refresh, mesh=mesh, lane_group=group)  # fmt: skip
+                        r["lane_map"] = parallel.lane_map_impl(mesh, mjx_physics=steps_mjx_physics(env))
+                except Exception as e:  # e.g. out of memory: recorded, the sweep goes on
+                    r = {"impl": "jaxrl_robot", "lanes": lanes, "steps_per_s": float("nan"), "error": repr(e)[:400]}
+                done[(devs, lanes, group, impl)] = r
+                print(f"{env_name:9s} ours {devs} GPU(s) lanes={lanes:7d} group={group:6d} "
+                      f"{r.get('lane_map', impl):9s} {r['steps_per_s']:14,.0f} steps/s compile "
+                      f"{r.get('compile_s', float('nan')):.1f}s", flush=True)  # fmt: skip
+            rows.append(_row(env_name, kind, devs, done[(devs, lanes, group, impl)]))
+            if on_row is not None:
+                on_row(rows)
     return rows
 
 
+def env_config(env_name: str, args: argparse.Namespace) -> dict[str, Any]:
+    """The env's settings: :data:`ENV_CONFIGS`' with ``--env-config`` over them."""
+    return {**ENV_CONFIGS[env_name], **pairs(args.env_config)}
+
+
 def run_brax(env_name: str, args: argparse.Namespace) -> list[dict[str, Any]]:
-    env = envs_mjx.make(env_name, **ENV_CONFIGS[env_name])
+    env = envs_mjx.make(env_name, **env_config(env_name, args))
     rows = []
     for lanes in args.brax:
         try:
@@ -143,13 +158,15 @@ def to_markdown(result: dict[str, Any]) -> str:
     ]
     one = {(r["env"], r["lanes"], r.get("lane_group", 0)): r["steps_per_s"] for r in result["runs"]
            if r["devices"] == 1 and r.get("impl") == "jaxrl_robot"}  # fmt: skip
+    several_maps = len({r.get("lane_map") for r in result["runs"] if r["devices"] > 1}) > 1
     for r in result["runs"]:
         d, lanes = r["devices"], r.get("lanes", 0)
         per = lanes // d if d else lanes
         base = one.get((r["env"], per, r.get("lane_group", 0)))
         eff = f"{r['steps_per_s'] / (d * base):.2f} (x{r['steps_per_s'] / base:.2f})" if base and d > 1 else ""
         comp = r.get("compile_s", r.get("first_epoch_s", float("nan")))
-        lines.append(f"| {r['env']} | {r['kind']} | {r.get('impl')} | {d} | {lanes} | {per} | "
+        impl = f"{r.get('impl')} ({r['lane_map']})" if several_maps and r.get("lane_map") else r.get("impl")
+        lines.append(f"| {r['env']} | {r['kind']} | {impl} | {d} | {lanes} | {per} | "
                      f"{r['steps_per_s']:,.0f} | {eff} | {comp:.1f} |")  # fmt: skip
     return "\n".join(lines) + "\n"
 
@@ -171,6 +188,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--lane-group", type=nonnegative, default=0)
     p.add_argument("--device-counts", type=positive, nargs="*", default=[],
                    help="device counts of the several-device rows (default: every device), e.g. 2 4")  # fmt: skip
+    p.add_argument("--lane-maps", nargs="+", default=["auto"], choices=["auto", *parallel.IMPLS],
+                   help="lane maps of the several-device rows (auto: the run's own choice; one-device rows: auto)")
+    p.add_argument("--env-config", nargs="*", default=[], help="env settings KEY=VALUE over the benchmark's own")
     p.add_argument("--out", default=RESULTS)
     p.add_argument("--brax-only", default="", help=argparse.SUPPRESS)
     provenance.add_args(p)
@@ -219,7 +239,7 @@ def _result(args: argparse.Namespace, prov: dict[str, Any], runs: list[dict[str,
         "repeats": args.repeats,
         "reset_refresh": args.reset_refresh,
         "device_counts": device_counts(args.device_counts, len(jax.devices())),
-        "env_configs": {e: ENV_CONFIGS[e] for e in args.envs},
+        "env_configs": {e: env_config(e, args) for e in args.envs},
         "runs": runs,
     }
 
