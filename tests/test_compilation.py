@@ -189,6 +189,23 @@ def test_the_key_follows_the_project_files(tmp_path):
         "args": {"env": "arm7"}, "ppo": {"gamma": 0.9}}  # other seeds and folders share programs
 
 
+def test_the_key_follows_the_lane_map_variable(tmp_path, monkeypatch):
+    """A program kept under one ``JAXRL_LANE_MAP`` is not the one a run under another loads (same run, same files)."""
+    from jaxrl_robot import parallel
+    from jaxrl_robot.compilation import programs
+
+    keys = []
+    try:
+        for value in ("", "vmap", "shard_map"):
+            monkeypatch.setenv(parallel.IMPL_ENV, value)
+            programs._process_context.cache_clear()
+            keys.append(programs.ProgramCache(str(tmp_path), {"ppo": {"gamma": 0.9}})._context)
+    finally:
+        monkeypatch.undo()
+        programs._process_context.cache_clear()
+    assert len(set(keys)) == 3
+
+
 def test_a_program_compiled_ahead_is_the_one_a_matching_call_runs(tmp_path):
     """``CachedJit.compile_ahead`` builds the program in a thread from shapes alone; the call with arguments of
     that signature runs it (traced once in all), equal to ``jax.jit``; other arguments compile in line."""

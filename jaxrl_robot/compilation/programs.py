@@ -82,14 +82,15 @@ def _version(name: str) -> str | None:
 
 @functools.cache
 def _process_context() -> str:
-    """What besides the run decides a compiled program: versions, JAX's settings, XLA's flags, the devices."""
+    """What besides the run decides a compiled program: versions, JAX's settings, XLA's flags, the lane map's
+    variable (``JAXRL_LANE_MAP``: the same run builds another program under another lane map), the devices."""
     settings = ("jax_enable_x64", "jax_default_matmul_precision", "jax_default_prng_impl", "jax_threefry_partitionable")
     return json.dumps({
         "code": code_fingerprint(),
         "versions": {n: _version(n) for n in VERSIONED},
         "python": sys.version.split()[0],
         "jax_config": {k: str(getattr(jax.config, k, None)) for k in settings},
-        "env": {k: os.environ.get(k) for k in ("XLA_FLAGS", "LIBTPU_INIT_ARGS")},
+        "env": {k: os.environ.get(k) for k in ("XLA_FLAGS", "LIBTPU_INIT_ARGS", parallel.IMPL_ENV)},
         "devices": parallel.device_summary(),
     }, sort_keys=True)  # fmt: skip
 

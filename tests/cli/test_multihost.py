@@ -133,8 +133,10 @@ def test_two_processes_train_like_one_and_only_process_0_writes(tmp_path):
     (single_dir,) = glob.glob(str(single / "ppo-brax_fast-*"))
     config = json.load(open(os.path.join(run_dir, "config.json")))
     assert config["processes"] == 2 and config["devices"] == 4
+    assert config["lane_map"] == "vmap"  # brax's env does not say it steps no MJX physics: several devices, vmap
     assert "coordinator" not in config["args"]  # where the processes ran is not part of the run
     assert json.load(open(os.path.join(single_dir, "config.json")))["devices"] == 1
+    assert json.load(open(os.path.join(single_dir, "config.json")))["lane_map"] == "shard_map"
 
     # only process 0 prints and writes; process 1 writes nothing outside its checkpoint shards
     assert f"run directory: {run_dir}" in first["p0"] and "run directory" not in first["p1"]
