@@ -18,6 +18,8 @@ def record_problem(p: dict[str, Any]) -> str | None:
         return "names no commit"
     if "--commit" in str(p.get("commit_source", "")):
         return "commit typed by hand (--commit); the tree it ran from was not checked"
+    if p.get("assembled_by_hand"):
+        return "assembled by hand from the runs' files: no tool took the commit the runs ran from"
     if p.get("dirty") is True:
         return "ran from a tree with uncommitted edits"
     if p.get("dirty") is not False:

@@ -116,6 +116,8 @@ def test_audit_lists_results_whose_provenance_does_not_verify():
     assert audit_result({"provenance": clean}) == []
     assert audit_result({"provenance": typed}) == ["commit typed by hand (--commit); the tree it ran from "
                                                               "was not checked"]  # fmt: skip
+    assert audit_result({"provenance": {**clean, "assembled_by_hand": True}}) == [
+        "assembled by hand from the runs' files: no tool took the commit the runs ran from"]
     merged = {"provenance": clean, "sources": [clean, {**clean, "dirty": True}]}
     assert audit_result(merged) == ["1 of its 3 invocations: ran from a tree with uncommitted edits"]
     assert audit_result({"provenance_recovered": {}})[0].startswith("written before the benchmark")
