@@ -57,8 +57,8 @@ from benchmarks.arguments import positive
 from benchmarks.timing import compile_and_time
 from benchmarks.tracking_report import pairs
 from benchmarks.train_throughput import RESULTS, device_label
-from envs_mjx.base import steps_mjx_physics
 from jaxrl_robot import parallel
+from jaxrl_robot.agents.core import lane_map_of
 from jaxrl_robot.agents.ddpg import DDPGConfig, make_trainer
 
 GOAL_STEPS, GOAL_UPDATES = 1_000_000, 2_000
@@ -104,7 +104,7 @@ def bench(kind: str, lanes: int, args: argparse.Namespace, impl: str = "auto") -
     config = config_for(kind, lanes, args)
     with lane_map(impl):
         trainer = make_trainer(config, env, iterations_per_update=args.iterations)
-        used = parallel.lane_map_impl(parallel.lane_mesh(), mjx_physics=steps_mjx_physics(env))
+        used = lane_map_of(env, parallel.lane_mesh())
     state = jax.block_until_ready(jax.jit(trainer.init)(jax.random.PRNGKey(0)))
     before = int(state.updates)
     compile_s, times, state = compile_and_time(trainer.update, state, args.repeats, donate=True)

@@ -29,8 +29,8 @@ import numpy as np
 from benchmarks import provenance
 from benchmarks.arguments import positive
 from benchmarks.train_throughput import RESULTS, device_label
-from envs_mjx.base import steps_mjx_physics
 from jaxrl_robot import parallel
+from jaxrl_robot.agents.core import lane_map_of
 
 CASES = ["ppo:arm7", "ppo:unicycle", "ppo:scara", "a2c:arm7", "a3c:arm7", "ddpg:arm7"]
 
@@ -77,7 +77,7 @@ def run_case(case: str, chunks: int, extra: list[str], preset: str = "fast") -> 
             last = time.perf_counter() - t
         res[f"wall_s_{d}"] = time.perf_counter() - t0
         res[f"steps_per_s_{d}"] = trainer.env_steps_per_update / last
-        res[f"lane_map_{d}"] = parallel.lane_map_impl(parallel.lane_mesh(d), mjx_physics=steps_mjx_physics(built))
+        res[f"lane_map_{d}"] = lane_map_of(built, parallel.lane_mesh(d))
         outs[d] = (_params(state), {k: float(v) for k, v in jax.device_get(metrics).items()})
     (p1, m1), (pn, mn) = outs[1], outs[n_all]
     res["max_param_diff"] = max(float(np.max(np.abs(p1[k] - pn[k]))) for k in p1)

@@ -19,8 +19,8 @@ Variants:
   cholesky        shard_map of no env: a batched Cholesky factorisation and solve of 7 x 7 systems per lane
                   and step, as MJX's forward dynamics factorises the mass matrix (is the linear-algebra
                   custom call what does not compile?);
-  sparse          shard_map of ``arm7`` ``pd`` with MuJoCo's sparse Jacobian option, under which MJX factorises
-                  the mass matrix with plain JAX operations instead of ``cho_factor`` / ``cho_solve``.
+  sparse          shard_map of ``arm7`` ``pd`` with ``jacobian="sparse"`` (MuJoCo's option), under which MJX
+                  factorises the mass matrix with plain JAX operations instead of ``cho_factor`` / ``cho_solve``.
 """
 
 from __future__ import annotations
@@ -56,16 +56,9 @@ def child(variant: str, lanes: int, steps: int) -> None:
     from envs_mjx.base import wrap_for_training
     from jaxrl_robot import parallel
 
-    env = {"kinematic": lambda: envs_mjx.make("arm7", mode="kinematic"),
-           "unicycle": lambda: envs_mjx.make("unicycle", mode="dynamic")}.get(variant, lambda: envs_mjx.make("arm7"))()
-    if variant == "sparse":
-        import mujoco
-
-        from envs_mjx import backend
-
-        env.mj_model.opt.jacobian = mujoco.mjtJacobian.mjJAC_SPARSE
-        env.mjx_model = backend.put_model(env.mj_model, "jax")
-        env._data0 = backend.make_data(env.mj_model, env.mjx_model)
+    name, config = {"kinematic": ("arm7", {"mode": "kinematic"}), "unicycle": ("unicycle", {"mode": "dynamic"}),
+                    "sparse": ("arm7", {"jacobian": "sparse"})}.get(variant, ("arm7", {}))  # fmt: skip
+    env = envs_mjx.make(name, **config)
     wrapped = wrap_for_training(env, episode_length=50)
     n_dev = 1 if variant == "one_device" else len(jax.devices())
     mesh = parallel.lane_mesh(n_dev)

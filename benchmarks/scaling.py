@@ -53,8 +53,8 @@ from benchmarks.train_throughput import (
     device_label,
     markdown_head,
 )
-from envs_mjx.base import steps_mjx_physics
 from jaxrl_robot import parallel
+from jaxrl_robot.agents.core import lane_map_of
 
 ENV_CONFIGS = {"arm7": {"mode": "pd"}, "unicycle": {"mode": "dynamic"}, "scara": {}}
 
@@ -104,7 +104,7 @@ def run_ours(env_name: str, args: argparse.Namespace, on_row: Any = None) -> lis
                     with lane_map(impl):
                         r = bench_ours(env, lanes, args.unroll, args.chunk_iters, args.repeats, args.updates,
                                        args.reset_refresh, mesh=mesh, lane_group=group)  # fmt: skip
-                        r["lane_map"] = parallel.lane_map_impl(mesh, mjx_physics=steps_mjx_physics(env))
+                        r["lane_map"] = lane_map_of(env, mesh)
                 except Exception as e:  # e.g. out of memory: recorded, the sweep goes on
                     r = {"impl": "jaxrl_robot", "lanes": lanes, "steps_per_s": float("nan"), "error": repr(e)[:400]}
                 done[(devs, lanes, group, impl)] = r

@@ -31,8 +31,8 @@ import tyro
 from brax.envs.base import Env
 from jax.sharding import Mesh
 
-from envs_mjx.base import steps_mjx_physics
 from jaxrl_robot import parallel
+from jaxrl_robot.agents.core import lane_map_of
 from jaxrl_robot.checkpoint import CheckpointError, CheckpointWriteError
 from jaxrl_robot.compilation import ProgramCache, compile_log, enable_persistent_cache, resolve_cache_dir
 from jaxrl_robot.types import Trainer
@@ -296,7 +296,7 @@ class AlgorithmCLI:
             self.name: dataclasses.asdict(cfg),
             "iterations_per_chunk": per_chunk,
             "devices": mesh.shape[parallel.LANES],
-            "lane_map": parallel.lane_map_impl(mesh, mjx_physics=steps_mjx_physics(env)),
+            "lane_map": lane_map_of(env, mesh),
             "processes": jax.process_count(),
             "env": env_record(args.env, env),
         }

@@ -154,8 +154,14 @@ def setup(
         steps_per_iteration=steps,
         iterations_per_update=iterations_per_update,
         num_updates=math.ceil(config.total_iterations / iterations_per_update),
-        lane_map=parallel.lane_map_impl(mesh, mjx_physics=steps_mjx_physics(env)),
+        lane_map=lane_map_of(env, mesh),
     )
+
+
+def lane_map_of(env: Any, mesh: jax.sharding.Mesh) -> str:
+    """The lane map a run of ``env`` (unwrapped or wrapped) over ``mesh`` takes: ``parallel.lane_map_impl`` of the
+    mesh and of whether the env steps MJX physics (``envs_mjx.base.steps_mjx_physics``)."""
+    return parallel.lane_map_impl(mesh, mjx_physics=steps_mjx_physics(env))
 
 
 @struct.dataclass(kw_only=True)
