@@ -20,7 +20,12 @@ Variants:
                   and step, as MJX's forward dynamics factorises the mass matrix (is the linear-algebra
                   custom call what does not compile?);
   sparse          shard_map of ``arm7`` ``pd`` with ``jacobian="sparse"`` (MuJoCo's option), under which MJX
-                  factorises the mass matrix with plain JAX operations instead of ``cho_factor`` / ``cho_solve``.
+                  factorises the mass matrix with plain JAX operations instead of ``cho_factor`` / ``cho_solve``;
+  stage:<S>       shard_map of MJX's pipeline on ``arm7``'s model (no env, no wrapper), every stage of
+                  :data:`STAGES` up to and including ``S`` per step (``step``: ``mjx.step``; ``substeps``: the
+                  env's ``fori_loop`` of ``mjx.step``), to find the first stage that XLA:GPU cannot compile.
+
+A variant that dies keeps the Python stack ``faulthandler`` printed (the extension-module list cut).
 """
 
 from __future__ import annotations
@@ -28,6 +33,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import subprocess
 import sys
 import time
@@ -42,8 +48,62 @@ FLAGS = {
     "no_lhs": "--xla_gpu_enable_latency_hiding_scheduler=false",
     "no_dbuf": "--xla_gpu_enable_while_loop_double_buffering=false",
 }
+STAGES = ("kinematics", "com_pos", "crb", "factor_m", "collision", "make_constraint", "transmission", "com_vel",
+          "passive", "rne", "fwd_actuation", "fwd_acceleration", "solve", "step", "substeps")
+"""MJX's forward pipeline in its order (``mujoco.mjx._src.forward``), then a whole step and the env's substeps."""
 DEFAULT = ["one_device", "jit_sharded", "vmap", "trainer", "shard_map", "shard_map_no_shardy"]
 DEFAULT += [f"shard_map+{f}" for f in FLAGS]
+
+
+def stage_fns(upto: str) -> list:
+    """MJX's functions ``(model, data) -> data`` of :data:`STAGES` up to ``upto`` (``step`` / ``substeps``: alone)."""
+    from mujoco import mjx
+    from mujoco.mjx._src import solver
+
+    if upto not in STAGES:
+        raise SystemExit(f"stage: {upto!r} is not one of {', '.join(STAGES)}")
+    if upto == "step":
+        return [mjx.step]
+    if upto == "substeps":
+        return [lambda m, d: jax_fori(10, lambda d: mjx.step(m, d), d)]
+    table = {"solve": solver.solve, **{n: getattr(mjx, n) for n in STAGES[:12]}}
+    return [table[n] for n in STAGES[: STAGES.index(upto) + 1]]
+
+
+def jax_fori(n: int, f, x):
+    """``jax.lax.fori_loop`` of ``f`` over ``n`` steps, as the env's substeps."""
+    import jax
+
+    return jax.lax.fori_loop(0, n, lambda _, y: f(y), x)
+
+
+def stage_roll(keys, steps: int, upto: str):
+    """[lanes] keys -> ([lanes, 1] sum of each lane's float data, [steps] mean qacc): ``steps`` steps of the
+    pipeline prefix ``upto`` on ``arm7``'s MJX model, each lane from its own perturbed ``qpos``."""
+    import jax
+    import jax.numpy as jnp
+
+    import envs_mjx
+
+    env = envs_mjx.make("arm7")
+    m, d0 = env.mjx_model, env._data0
+    fns = stage_fns(upto)
+
+    def one(d):
+        for f in fns:
+            d = f(m, d)
+        return d.replace(qpos=d.qpos + 1e-3 * jnp.tanh(d.qvel + d.qacc + d.xpos.sum()))
+
+    d = jax.vmap(lambda k: d0.replace(qpos=d0.qpos + 0.05 * jax.random.normal(k, d0.qpos.shape)))(keys)
+
+    def body(d, _):
+        d = jax.vmap(one)(d)
+        return d, jnp.mean(d.qacc)
+
+    d, r = jax.lax.scan(body, d, None, length=steps)
+    leaves = [x.reshape(x.shape[0], -1).sum(1) for x in jax.tree.leaves(d) if jnp.issubdtype(x.dtype, jnp.floating)
+              and x.ndim >= 1 and x.shape[0] == keys.shape[0]]  # fmt: skip
+    return jnp.stack(leaves, 1).sum(1, keepdims=True), r
 
 
 def child(variant: str, lanes: int, steps: int) -> None:
@@ -78,6 +138,9 @@ def child(variant: str, lanes: int, steps: int) -> None:
     def roll(keys):
         if variant == "cholesky":
             return factorise(keys)
+        if variant.startswith("stage:"):
+            obs, r = stage_roll(keys, steps, variant.split(":", 1)[1])
+            return obs, parallel.pmean(r)
         state = wrapped.reset(keys)
 
         def body(s, _):
@@ -142,8 +205,9 @@ def main() -> None:
         for line in out.splitlines():
             if line.startswith("{"):
                 result = json.loads(line)
+        err = re.sub(r"\nExtension modules:[^\n]*", "", err)  # faulthandler's list of loaded modules
         rows.append({"variant": v, "rc": rc, "wall_s": round(time.time() - t0, 1), **result,
-                     "stderr_tail": err[-1500:] if rc != 0 else ""})
+                     "stderr_tail": err[-3000:] if rc != 0 else ""})
         print(f"{v:40s} rc={rc!s:8s} {json.dumps(result)}", flush=True)
         if rc != 0:
             print("   " + err[-1200:].replace("\n", "\n   "), flush=True)
