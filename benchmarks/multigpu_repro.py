@@ -21,9 +21,14 @@ Variants:
                   custom call what does not compile?);
   sparse          shard_map of ``arm7`` ``pd`` with ``jacobian="sparse"`` (MuJoCo's option), under which MJX
                   factorises the mass matrix with plain JAX operations instead of ``cho_factor`` / ``cho_solve``;
+  const, const_numpy, const_device0   shard_map of no env: a closed-over constant, an uncommitted device
+                  array, a NumPy array or an array committed to the first device;
   stage:<S>       shard_map of MJX's pipeline on ``arm7``'s model (no env, no wrapper), every stage of
                   :data:`STAGES` up to and including ``S`` per step (``step``: ``mjx.step``; ``substeps``: the
-                  env's ``fori_loop`` of ``mjx.step``), to find the first stage that XLA:GPU cannot compile.
+                  env's ``fori_loop`` of ``mjx.step``), to find the first stage that XLA:GPU cannot compile;
+                  ``stage:<S>/numpy``: the model's arrays as NumPy constants; ``/uncommitted``: on no
+                  device in particular; ``stage:<S>/arg``: the model a
+                  replicated argument.
 
 A variant that dies keeps the Python stack ``faulthandler`` printed (the extension-module list cut).
 """
@@ -77,16 +82,36 @@ def jax_fori(n: int, f, x):
     return jax.lax.fori_loop(0, n, lambda _, y: f(y), x)
 
 
-def stage_roll(keys, steps: int, upto: str):
-    """[lanes] keys -> ([lanes, 1] sum of each lane's float data, [steps] mean qacc): ``steps`` steps of the
-    pipeline prefix ``upto`` on ``arm7``'s MJX model, each lane from its own perturbed ``qpos``."""
+def stage_model(how: str):
+    """``arm7``'s MJX model and initial data; ``how``: ``""`` as the env holds them (device arrays closed over by
+    the traced function), ``numpy``: the model's arrays NumPy arrays (constants embedded in the program) and the
+    data's on no device in particular, ``uncommitted``: both on no device in particular."""
     import jax
     import jax.numpy as jnp
+    import numpy as np
 
     import envs_mjx
 
     env = envs_mjx.make("arm7")
     m, d0 = env.mjx_model, env._data0
+    if how == "numpy":
+        m = jax.tree.map(lambda x: np.asarray(x) if isinstance(x, jax.Array) else x, m)
+    if how in ("numpy", "uncommitted"):  # the data's arrays on no device in particular
+        d0 = jax.tree.map(lambda x: jnp.asarray(np.asarray(x)) if isinstance(x, jax.Array) else x, d0)
+    if how == "uncommitted":
+        m = jax.tree.map(lambda x: jnp.asarray(np.asarray(x)) if isinstance(x, jax.Array) else x, m)
+    return m, d0
+
+
+def stage_roll(keys, steps: int, upto: str, model):
+    """[lanes] keys -> ([lanes, 1] sum of each lane's float data, [steps] mean qacc): ``steps`` steps of the
+    pipeline prefix ``upto`` (a suffix ``/...`` ignored) on ``arm7``'s MJX model, each lane from its own perturbed
+    ``qpos``; ``model``: ``(m, d0)`` of :func:`stage_model`, closed over or passed in as arguments."""
+    import jax
+    import jax.numpy as jnp
+
+    upto = upto.partition("/")[0]
+    m, d0 = model
     fns = stage_fns(upto)
 
     def one(d):
@@ -109,6 +134,7 @@ def stage_roll(keys, steps: int, upto: str):
 def child(variant: str, lanes: int, steps: int) -> None:
     import jax
     import jax.numpy as jnp
+    import numpy as np
 
     if variant == "shard_map_no_shardy":
         jax.config.update("jax_use_shardy_partitioner", False)
@@ -135,12 +161,21 @@ def child(variant: str, lanes: int, steps: int) -> None:
         x, r = jax.lax.scan(body, jnp.zeros(m.shape[:2]), None, length=steps)
         return x, parallel.pmean(r)
 
+    # a stage variant's model and data, built before tracing (their arrays closed over by the traced function)
+    built = stage_model(variant.partition("/")[2]) if variant.startswith("stage:") else None
+
     def roll(keys):
         if variant == "cholesky":
             return factorise(keys)
         if variant.startswith("stage:"):
-            obs, r = stage_roll(keys, steps, variant.split(":", 1)[1])
+            obs, r = stage_roll(keys, steps, variant.split(":", 1)[1], built)
             return obs, parallel.pmean(r)
+        if variant.startswith("const"):  # a closed-over constant: NumPy, uncommitted or committed to device 0
+            c = np.arange(64.0, dtype=np.float32)
+            c = {"const_numpy": c, "const": jnp.asarray(c),
+                 "const_device0": jax.device_put(c, jax.devices()[0])}[variant]
+            x = jax.vmap(lambda k: jax.random.normal(k, (64,)))(keys)
+            return x + jnp.take(c, jnp.arange(63, -1, -1)), parallel.pmean(jnp.mean(x * c, 1)[:steps])
         state = wrapped.reset(keys)
 
         def body(s, _):
@@ -152,6 +187,17 @@ def child(variant: str, lanes: int, steps: int) -> None:
         return state.obs, (r if variant == "jit_sharded" else parallel.pmean(r))
 
     keys = jax.random.split(jax.random.PRNGKey(0), lanes)
+    if variant.endswith("/arg"):  # the model as a replicated argument of the mapped function, not a constant
+        model = jax.device_put(built, parallel.NamedSharding(mesh, parallel.P()))  # replicated
+        spec_m = jax.tree.map(lambda _: parallel.P(), model)
+        mapped = parallel.shard_lanes(lambda k, mod: stage_roll(k, steps, variant[6:-4], mod), mesh,
+                                      (parallel.P(parallel.LANES), spec_m), (parallel.P(parallel.LANES), parallel.P()))
+        t0 = time.perf_counter()
+        compiled = jax.jit(mapped).lower(jax.device_put(keys, parallel.lane_sharding(mesh)), model).compile()
+        t1 = time.perf_counter()
+        obs, r = compiled(jax.device_put(keys, parallel.lane_sharding(mesh)), model)
+        report(variant, n_dev, t1 - t0, obs, r)
+        return
     if variant == "jit_sharded":
         split = parallel.lane_sharding(mesh)
         fn = jax.jit(roll, in_shardings=split, out_shardings=(split, parallel.lane_sharding(mesh, False)))
@@ -164,9 +210,17 @@ def child(variant: str, lanes: int, steps: int) -> None:
     compiled = fn.lower(spec).compile()
     t1 = time.perf_counter()
     obs, r = compiled(jax.device_put(keys, parallel.lane_sharding(mesh)))
+    report(variant, n_dev, t1 - t0, obs, r)
+
+
+def report(variant: str, n_dev: int, compile_s: float, obs, r) -> None:
+    """The variant's result line (JSON) on stdout, after its outputs are ready."""
+    import jax
+    import jax.numpy as jnp
+
     jax.block_until_ready(obs)
     print(json.dumps({"variant": variant, "devices": n_dev, "device_kind": jax.devices()[0].device_kind,
-                      "platform": jax.devices()[0].platform, "compile_s": round(t1 - t0, 2),
+                      "platform": jax.devices()[0].platform, "compile_s": round(compile_s, 2),
                       "obs_sum": float(jnp.sum(obs)), "reward_last": float(r[-1])}))  # fmt: skip
 
 
