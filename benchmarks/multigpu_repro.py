@@ -13,6 +13,8 @@ Variants:
   jit_sharded     ``jax.jit`` with ``NamedSharding`` in/out shardings and no shard_map;
   shard_map+<F>   shard_map with one XLA flag ``F`` added to ``XLA_FLAGS`` (e.g. autotune off);
   shard_map_no_shardy   shard_map with ``jax_use_shardy_partitioner=False``;
+  shard_map_args  the shard_map variant with the arrays it closes over passed in as arguments of the jitted program
+                  (``parallel.constants_as_arguments``);
   trainer         ``parallel.shard_lanes`` with its default implementation for the mesh;
   kinematic       shard_map of ``arm7`` in ``kinematic`` mode (plain JAX, no MJX: the control that compiles);
   unicycle        shard_map of ``unicycle`` in ``dynamic`` mode (MJX, another model);
@@ -196,6 +198,17 @@ def child(variant: str, lanes: int, steps: int) -> None:
         compiled = jax.jit(mapped).lower(jax.device_put(keys, parallel.lane_sharding(mesh)), model).compile()
         t1 = time.perf_counter()
         obs, r = compiled(jax.device_put(keys, parallel.lane_sharding(mesh)), model)
+        report(variant, n_dev, t1 - t0, obs, r)
+        return
+    if variant == "shard_map_args":  # the shard_map variant, the arrays it closes over arguments of the program
+        mapped = parallel.shard_lanes(roll, mesh, parallel.P(parallel.LANES),
+                                      (parallel.P(parallel.LANES), parallel.P()), impl="shard_map")  # fmt: skip
+        placed = jax.device_put(keys, parallel.lane_sharding(mesh))
+        t0 = time.perf_counter()
+        g, consts = parallel.constants_as_arguments(mapped, placed, mesh=mesh)
+        compiled = jax.jit(g).lower(consts, placed).compile()
+        t1 = time.perf_counter()
+        obs, r = compiled(consts, placed)
         report(variant, n_dev, t1 - t0, obs, r)
         return
     if variant == "jit_sharded":

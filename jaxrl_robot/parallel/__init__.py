@@ -168,6 +168,28 @@ def shard_lanes(
     return _shard_map_constants_in(fn, mesh, in_specs, out_specs)
 
 
+def constants_as_arguments(fn: Callable[..., Any], *args: Any, mesh: Mesh | None = None) -> tuple[Callable, list]:
+    """``(g, consts)`` with ``g(consts, *args) == fn(*args)``: ``fn`` traced once on ``args`` (arrays or
+    ``jax.ShapeDtypeStruct``), every array it closes over moved from the traced program's constants into its
+    argument ``consts`` (placed replicated over ``mesh`` when given).
+
+    Jit ``g`` and call it with ``consts``: the compiled program then holds no large literals. XLA:GPU dies compiling
+    MJX's physics inside ``jax.shard_map`` over several GPUs while the model's arrays are constants of the program,
+    and compiles it when they are arguments of the jitted function
+    (``benchmarks/results/gpu-nvidia_h200x2-multigpu_repro-consts.md``).
+    """
+    closed, out_shape = jax.make_jaxpr(fn, return_shape=True)(*args)
+    out_tree = jax.tree.structure(out_shape)
+
+    def g(consts: list, *a: Any) -> Any:
+        return jax.tree.unflatten(out_tree, jax.core.eval_jaxpr(closed.jaxpr, consts, *jax.tree.leaves(a)))
+
+    consts = list(closed.consts)
+    if mesh is not None:
+        consts = jax.device_put(consts, NamedSharding(mesh, P()))
+    return g, consts
+
+
 def _arg_specs(in_specs: Any, args: tuple) -> list[Any]:
     """One spec-tree per positional argument, each spec repeated down to the argument's leaves."""
     specs = (in_specs,) * len(args) if _is_spec(in_specs) else tuple(in_specs)
