@@ -13,8 +13,8 @@ Variants:
   jit_sharded     ``jax.jit`` with ``NamedSharding`` in/out shardings and no shard_map;
   shard_map+<F>   shard_map with one XLA flag ``F`` added to ``XLA_FLAGS`` (e.g. autotune off);
   shard_map_no_shardy   shard_map with ``jax_use_shardy_partitioner=False``;
-  shard_map_args  the shard_map variant with the arrays it closes over passed in as arguments of the jitted program
-                  (``parallel.constants_as_arguments``);
+  <V>@args        variant V with the arrays its mapped function closes over passed in as arguments of the jitted
+                  program (``parallel.constants_as_arguments``); ``shard_map_args``: ``shard_map@args``;
   trainer         ``parallel.shard_lanes`` with its default implementation for the mesh;
   kinematic       shard_map of ``arm7`` in ``kinematic`` mode (plain JAX, no MJX: the control that compiles);
   unicycle        shard_map of ``unicycle`` in ``dynamic`` mode (MJX, another model);
@@ -134,6 +134,9 @@ def stage_roll(keys, steps: int, upto: str, model):
 
 
 def child(variant: str, lanes: int, steps: int) -> None:
+    label = variant
+    variant = {"shard_map_args": "shard_map@args"}.get(variant, variant)
+    variant, hoist = variant.removesuffix("@args"), variant.endswith("@args")
     import jax
     import jax.numpy as jnp
     import numpy as np
@@ -192,28 +195,29 @@ def child(variant: str, lanes: int, steps: int) -> None:
     if variant.endswith("/arg"):  # the model as a replicated argument of the mapped function, not a constant
         model = jax.device_put(built, parallel.NamedSharding(mesh, parallel.P()))  # replicated
         spec_m = jax.tree.map(lambda _: parallel.P(), model)
-        mapped = parallel.shard_lanes(lambda k, mod: stage_roll(k, steps, variant[6:-4], mod), mesh,
+        mapped = parallel.shard_lanes(lambda k, mod: pmean_second(stage_roll(k, steps, variant[6:-4], mod)), mesh,
                                       (parallel.P(parallel.LANES), spec_m), (parallel.P(parallel.LANES), parallel.P()))
         t0 = time.perf_counter()
         compiled = jax.jit(mapped).lower(jax.device_put(keys, parallel.lane_sharding(mesh)), model).compile()
         t1 = time.perf_counter()
         obs, r = compiled(jax.device_put(keys, parallel.lane_sharding(mesh)), model)
-        report(variant, n_dev, t1 - t0, obs, r)
-        return
-    if variant == "shard_map_args":  # the shard_map variant, the arrays it closes over arguments of the program
-        mapped = parallel.shard_lanes(roll, mesh, parallel.P(parallel.LANES),
-                                      (parallel.P(parallel.LANES), parallel.P()), impl="shard_map")  # fmt: skip
-        placed = jax.device_put(keys, parallel.lane_sharding(mesh))
-        t0 = time.perf_counter()
-        g, consts = parallel.constants_as_arguments(mapped, placed, mesh=mesh)
-        compiled = jax.jit(g).lower(consts, placed).compile()
-        t1 = time.perf_counter()
-        obs, r = compiled(consts, placed)
-        report(variant, n_dev, t1 - t0, obs, r)
+        report(label, n_dev, t1 - t0, obs, r)
         return
     if variant == "jit_sharded":
         split = parallel.lane_sharding(mesh)
         fn = jax.jit(roll, in_shardings=split, out_shardings=(split, parallel.lane_sharding(mesh, False)))
+    elif hoist:  # the arrays the mapped function closes over: arguments of the jitted program
+        impl = {"trainer": None, "vmap": "vmap"}.get(variant, "shard_map")
+        specs = (parallel.P(parallel.LANES), (parallel.P(parallel.LANES), parallel.P()))
+        placed = jax.device_put(keys, parallel.lane_sharding(mesh))
+        t0 = time.perf_counter()
+        g, consts = parallel.constants_as_arguments(parallel.shard_lanes(roll, mesh, *specs, impl=impl), placed,
+                                                    mesh=mesh)  # fmt: skip
+        compiled = jax.jit(g).lower(consts, placed).compile()
+        t1 = time.perf_counter()
+        obs, r = compiled(consts, placed)
+        report(label, n_dev, t1 - t0, obs, r)
+        return
     else:
         impl = {"trainer": None, "vmap": "vmap"}.get(variant, "shard_map")
         specs = (parallel.P(parallel.LANES), (parallel.P(parallel.LANES), parallel.P()))
@@ -223,7 +227,14 @@ def child(variant: str, lanes: int, steps: int) -> None:
     compiled = fn.lower(spec).compile()
     t1 = time.perf_counter()
     obs, r = compiled(jax.device_put(keys, parallel.lane_sharding(mesh)))
-    report(variant, n_dev, t1 - t0, obs, r)
+    report(label, n_dev, t1 - t0, obs, r)
+
+
+def pmean_second(pair: tuple) -> tuple:
+    """``(a, b)`` -> ``(a, pmean(b))``: the second output averaged over every device's lanes."""
+    from jaxrl_robot import parallel
+
+    return pair[0], parallel.pmean(pair[1])
 
 
 def report(variant: str, n_dev: int, compile_s: float, obs, r) -> None:
