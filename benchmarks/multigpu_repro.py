@@ -13,6 +13,8 @@ Variants:
   jit_sharded     ``jax.jit`` with ``NamedSharding`` in/out shardings and no shard_map;
   shard_map+<F>   shard_map with one XLA flag ``F`` added to ``XLA_FLAGS`` (e.g. autotune off);
   shard_map_no_shardy   shard_map with ``jax_use_shardy_partitioner=False``;
+  env_arg         the shard_map variant (the env's rollout) with the env's MJX model and initial data traced
+                  arguments of the mapped function, swapped into the env while it is traced;
   <V>@args        variant V with the arrays its mapped function closes over passed in as arguments of the jitted
                   program (``parallel.constants_as_arguments``); ``shard_map_args``: ``shard_map@args``;
   trainer         ``parallel.shard_lanes`` with its default implementation for the mesh;
@@ -192,6 +194,27 @@ def child(variant: str, lanes: int, steps: int) -> None:
         return state.obs, (r if variant == "jit_sharded" else parallel.pmean(r))
 
     keys = jax.random.split(jax.random.PRNGKey(0), lanes)
+    if variant == "env_arg":  # the env's rollout, its model and initial data traced arguments of the mapped function
+        model = jax.device_put((env.mjx_model, env._data0), parallel.NamedSharding(mesh, parallel.P()))
+
+        def roll_with(k, mod):
+            held = env.mjx_model, env._data0
+            env.mjx_model, env._data0 = mod  # read while tracing: the traced arguments stand in for the constants
+            try:
+                return roll(k)
+            finally:
+                env.mjx_model, env._data0 = held
+
+        spec_m = jax.tree.map(lambda _: parallel.P(), model)
+        mapped = parallel.shard_lanes(roll_with, mesh, (parallel.P(parallel.LANES), spec_m),
+                                      (parallel.P(parallel.LANES), parallel.P()), impl="shard_map")  # fmt: skip
+        placed = jax.device_put(keys, parallel.lane_sharding(mesh))
+        t0 = time.perf_counter()
+        compiled = jax.jit(mapped).lower(placed, model).compile()
+        t1 = time.perf_counter()
+        obs, r = compiled(placed, model)
+        report(label, n_dev, t1 - t0, obs, r)
+        return
     if variant.endswith("/arg"):  # the model as a replicated argument of the mapped function, not a constant
         model = jax.device_put(built, parallel.NamedSharding(mesh, parallel.P()))  # replicated
         spec_m = jax.tree.map(lambda _: parallel.P(), model)
