@@ -56,6 +56,8 @@ FLAGS = {
     "no_triton_gemm": "--xla_gpu_enable_triton_gemm=false",
     "no_lhs": "--xla_gpu_enable_latency_hiding_scheduler=false",
     "no_dbuf": "--xla_gpu_enable_while_loop_double_buffering=false",
+    "no_constant_folding": "--xla_disable_hlo_passes=constant_folding",
+    "no_simplify": "--xla_disable_hlo_passes=algsimp",
 }
 STAGES = ("kinematics", "com_pos", "crb", "factor_m", "collision", "make_constraint", "transmission", "com_vel",
           "passive", "rne", "fwd_actuation", "fwd_acceleration", "solve", "step", "substeps")
