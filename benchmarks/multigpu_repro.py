@@ -16,7 +16,7 @@ Variants:
   env_arg         the shard_map variant (the env's rollout) with the env's MJX model and initial data traced
                   arguments of the mapped function, swapped into the env while it is traced;
   <V>@args        variant V with the arrays its mapped function closes over passed in as arguments of the jitted
-                  program (``parallel.constants_as_arguments``); ``shard_map_args``: ``shard_map@args``;
+                  program (:func:`constants_as_arguments`); ``shard_map_args``: ``shard_map@args``;
   trainer         ``parallel.shard_lanes`` with its default implementation for the mesh;
   kinematic       shard_map of ``arm7`` in ``kinematic`` mode (plain JAX, no MJX: the control that compiles);
   unicycle        shard_map of ``unicycle`` in ``dynamic`` mode (MJX, another model);
@@ -64,6 +64,25 @@ STAGES = ("kinematics", "com_pos", "crb", "factor_m", "collision", "make_constra
 """MJX's forward pipeline in its order (``mujoco.mjx._src.forward``), then a whole step and the env's substeps."""
 DEFAULT = ["one_device", "jit_sharded", "vmap", "trainer", "shard_map", "shard_map_no_shardy"]
 DEFAULT += [f"shard_map+{f}" for f in FLAGS]
+
+
+def constants_as_arguments(fn, *args, mesh=None) -> tuple:
+    """``(g, consts)`` with ``g(consts, *args) == fn(*args)``: ``fn`` traced once on ``args``, every array it closes
+    over moved from the traced program's constants into its argument ``consts`` (replicated over ``mesh``)."""
+    import jax
+
+    from jaxrl_robot import parallel
+
+    closed, out_shape = jax.make_jaxpr(fn, return_shape=True)(*args)
+    out_tree = jax.tree.structure(out_shape)
+
+    def g(consts: list, *a):
+        return jax.tree.unflatten(out_tree, jax.core.eval_jaxpr(closed.jaxpr, consts, *jax.tree.leaves(a)))
+
+    consts = list(closed.consts)
+    if mesh is not None:
+        consts = jax.device_put(consts, parallel.NamedSharding(mesh, parallel.P()))
+    return g, consts
 
 
 def stage_fns(upto: str) -> list:
@@ -236,7 +255,7 @@ def child(variant: str, lanes: int, steps: int) -> None:
         specs = (parallel.P(parallel.LANES), (parallel.P(parallel.LANES), parallel.P()))
         placed = jax.device_put(keys, parallel.lane_sharding(mesh))
         t0 = time.perf_counter()
-        g, consts = parallel.constants_as_arguments(parallel.shard_lanes(roll, mesh, *specs, impl=impl), placed,
+        g, consts = constants_as_arguments(parallel.shard_lanes(roll, mesh, *specs, impl=impl), placed,
                                                     mesh=mesh)  # fmt: skip
         compiled = jax.jit(g).lower(consts, placed).compile()
         t1 = time.perf_counter()

@@ -35,8 +35,7 @@ import envs_mjx
 from benchmarks import provenance
 from benchmarks.arguments import positive
 from benchmarks.peers.brax_ppo import run_brax_ppo
-from benchmarks.timing import compile_and_time, init_state
-from jaxrl_robot import parallel
+from benchmarks.timing import compile_and_time
 from jaxrl_robot.agents.ppo import PPOConfig, make_trainer
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
@@ -68,9 +67,8 @@ def bench_ours(
         lane_group=lane_group,
     )  # fmt: skip
     trainer = make_trainer(cfg, env, mesh=mesh, iterations_per_update=chunk_iters)
-    mesh = mesh if mesh is not None else parallel.lane_mesh()
-    state = init_state(trainer.init, jax.random.PRNGKey(0), mesh)
-    compile_s, times, _ = compile_and_time(trainer.update, state, repeats, mesh=mesh)
+    state = jax.block_until_ready(jax.jit(trainer.init)(jax.random.PRNGKey(0)))
+    compile_s, times, _ = compile_and_time(trainer.update, state, repeats)
     med = statistics.median(times)
     return {
         "impl": "jaxrl_robot",

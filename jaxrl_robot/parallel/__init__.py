@@ -161,80 +161,9 @@ def shard_lanes(
     device's value is returned). ``impl``: ``"shard_map"`` or ``"vmap"`` (default:
     :func:`lane_map_impl`).
     """
-    if lane_map_impl(mesh, impl) != "shard_map":
-        return _vmap_lanes(fn, mesh, in_specs, out_specs)
-    if mesh.shape[LANES] == 1:
+    if lane_map_impl(mesh, impl) == "shard_map":
         return jax.shard_map(fn, mesh=mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False)
-    return _shard_map_constants_in(fn, mesh, in_specs, out_specs)
-
-
-def constants_as_arguments(fn: Callable[..., Any], *args: Any, mesh: Mesh | None = None) -> tuple[Callable, list]:
-    """``(g, consts)`` with ``g(consts, *args) == fn(*args)``: ``fn`` traced once on ``args`` (arrays or
-    ``jax.ShapeDtypeStruct``), every array it closes over moved from the traced program's constants into its
-    argument ``consts`` (placed replicated over ``mesh`` when given).
-
-    Jit ``g`` and call it with ``consts``: the compiled program then holds no large literals. XLA:GPU dies compiling
-    MJX's physics inside ``jax.shard_map`` over several GPUs while the model's arrays are constants of the program,
-    and compiles it when they are arguments of the jitted function
-    (``benchmarks/results/gpu-nvidia_h200x2-multigpu_repro-consts.md``).
-    """
-    closed, out_shape = jax.make_jaxpr(fn, return_shape=True)(*args)
-    out_tree = jax.tree.structure(out_shape)
-
-    def g(consts: list, *a: Any) -> Any:
-        return jax.tree.unflatten(out_tree, jax.core.eval_jaxpr(closed.jaxpr, consts, *jax.tree.leaves(a)))
-
-    consts = list(closed.consts)
-    if mesh is not None:
-        consts = jax.device_put(consts, NamedSharding(mesh, P()))
-    return g, consts
-
-
-def _arg_specs(in_specs: Any, args: tuple) -> list[Any]:
-    """One spec-tree per positional argument, each spec repeated down to the argument's leaves."""
-    specs = (in_specs,) * len(args) if _is_spec(in_specs) else tuple(in_specs)
-    if len(specs) != len(args):
-        raise ValueError(f"in_specs has {len(specs)} entries for {len(args)} arguments")
-    return [jax.tree.map(lambda s, a: jax.tree.map(lambda _: s, a), tree, arg, is_leaf=_is_spec)
-            for tree, arg in zip(specs, args, strict=True)]  # fmt: skip
-
-
-def _shard_map_constants_in(fn: Callable[..., Any], mesh: Mesh, in_specs: Any, out_specs: Any) -> Callable[..., Any]:
-    """``jax.shard_map`` of ``fn`` over several devices, every array ``fn`` closes over passed in as a replicated
-    argument instead of a constant of the mapped program.
-
-    XLA:GPU dies (segmentation fault) compiling MJX's physics inside ``jax.shard_map`` over two GPUs when the
-    model's arrays are constants of the mapped program (closed over, as an env holds its model), and compiles it
-    when they are arguments (``benchmarks/results/gpu-nvidia_h200x2-multigpu_repro-consts.md``). ``fn`` is traced
-    once on this device's slice of the inputs (``jax.make_jaxpr`` with the lane axis bound) and its jaxpr's
-    constants become ``P()`` inputs of the ``shard_map``.
-    """
-    num = mesh.shape[LANES]
-
-    def local(spec: PartitionSpec, x: Any) -> jax.ShapeDtypeStruct:
-        shape = tuple(np.shape(x))
-        if _is_split(spec):
-            if not shape or shape[0] % num:
-                raise ValueError(f"a P('lanes') input of shape {shape} does not split over {num} devices")
-            shape = (shape[0] // num,) + shape[1:]
-        return jax.ShapeDtypeStruct(shape, x.dtype if hasattr(x, "dtype") else jnp.result_type(x))
-
-    def mapped(*args: Any) -> Any:
-        leaf_specs = _arg_specs(in_specs, args)
-        shapes = [jax.tree.map(local, s, a) for s, a in zip(leaf_specs, args, strict=True)]
-        closed, out_shape = jax.make_jaxpr(fn, axis_env=[(LANES, num)], return_shape=True)(*shapes)
-        flat, _ = jax.tree.flatten(args)
-        flat_specs = jax.tree.leaves(leaf_specs, is_leaf=_is_spec)
-        out_tree = jax.tree.structure(out_shape)
-
-        def body(xs: list, consts: list) -> Any:
-            return jax.tree.unflatten(out_tree, jax.core.eval_jaxpr(closed.jaxpr, consts, *xs))
-
-        run = jax.shard_map(body, mesh=mesh, in_specs=(flat_specs, [P()] * len(closed.consts)),
-                            out_specs=out_specs, check_vma=False)  # fmt: skip
-        return run(flat, list(closed.consts))
-
-    return mapped
+    return _vmap_lanes(fn, mesh, in_specs, out_specs)
 
 
 def _is_spec(x: Any) -> bool:
