@@ -25,6 +25,7 @@ Variants:
                   custom call what does not compile?);
   sparse          shard_map of ``arm7`` ``pd`` with ``jacobian="sparse"`` (MuJoCo's option), under which MJX
                   factorises the mass matrix with plain JAX operations instead of ``cho_factor`` / ``cho_solve``;
+  op:<O>          shard_map of no env: one kind of operation on NumPy constants (:data:`OPS`);
   const, const_numpy, const_device0   shard_map of no env: a closed-over constant, an uncommitted device
                   array, a NumPy array or an array committed to the first device;
   stage:<S>       shard_map of MJX's pipeline on ``arm7``'s model (no env, no wrapper), every stage of
@@ -64,6 +65,56 @@ STAGES = ("kinematics", "com_pos", "crb", "factor_m", "collision", "make_constra
 """MJX's forward pipeline in its order (``mujoco.mjx._src.forward``), then a whole step and the env's substeps."""
 DEFAULT = ["one_device", "jit_sharded", "vmap", "trainer", "shard_map", "shard_map_no_shardy"]
 DEFAULT += [f"shard_map+{f}" for f in FLAGS]
+
+
+OPS = ("gather", "scatter", "segment_sum", "quat", "fori")
+"""The ``op:<name>`` variants: a gather / scatter-add with NumPy indices, a ``segment_sum`` with NumPy segment ids,
+quaternion products with a NumPy table of quaternions (as MJX's kinematics composes body frames), a ``fori_loop``
+over a NumPy table."""
+
+
+def op_roll(keys, steps: int, op: str):
+    """[lanes] keys -> ([lanes, 64] values, [steps] mean): ``steps`` steps of operation ``op`` (:data:`OPS`)."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from jaxrl_robot import parallel
+
+    if op not in OPS:
+        raise SystemExit(f"op: {op!r} is not one of {', '.join(OPS)}")
+    rng = np.random.default_rng(0)
+    idx, seg = rng.integers(0, 64, 64), np.sort(rng.integers(0, 8, 64))
+    table = rng.normal(size=(16, 4)).astype(np.float32)
+
+    def quat_mul(u, v):  # [..., 4] x [..., 4] -> [..., 4], (w, x, y, z)
+        w0, x0, y0, z0 = jnp.moveaxis(u, -1, 0)
+        w1, x1, y1, z1 = jnp.moveaxis(v, -1, 0)
+        w = w0 * w1 - x0 * x1 - y0 * y1 - z0 * z1
+        x = w0 * x1 + x0 * w1 + y0 * z1 - z0 * y1
+        y = w0 * y1 - x0 * z1 + y0 * w1 + z0 * x1
+        return jnp.stack([w, x, y, w0 * z1 + x0 * y1 - y0 * x1 + z0 * w1], -1)
+
+    def one(x):  # [64] -> [64]
+        if op == "gather":
+            return x[idx] * 0.5 + x
+        if op == "scatter":
+            return x.at[idx].add(0.1 * x)
+        if op == "segment_sum":
+            return x + jax.ops.segment_sum(x, seg, num_segments=8)[seg] * 0.1
+        if op == "quat":
+            q = quat_mul(table, x[:64].reshape(16, 4))
+            return (q / jnp.linalg.norm(q, axis=-1, keepdims=True)).reshape(64)
+        return jax.lax.fori_loop(0, 16, lambda i, y: y * 0.9 + jnp.tile(jnp.asarray(table)[i], 16), x)
+
+    x = jax.vmap(lambda k: jax.random.normal(k, (64,)))(keys)
+
+    def body(x, _):
+        x = jax.vmap(one)(x)
+        return x, jnp.mean(x)
+
+    x, r = jax.lax.scan(body, x, None, length=steps)
+    return x, parallel.pmean(r)
 
 
 def constants_as_arguments(fn, *args, mesh=None) -> tuple:
@@ -198,6 +249,8 @@ def child(variant: str, lanes: int, steps: int) -> None:
         if variant.startswith("stage:"):
             obs, r = stage_roll(keys, steps, variant.split(":", 1)[1], built)
             return obs, parallel.pmean(r)
+        if variant.startswith("op:"):  # one kind of operation MJX's kinematics uses, on constant NumPy operands
+            return op_roll(keys, steps, variant[3:])
         if variant.startswith("const"):  # a closed-over constant: NumPy, uncommitted or committed to device 0
             c = np.arange(64.0, dtype=np.float32)
             c = {"const_numpy": c, "const": jnp.asarray(c),
