@@ -20,6 +20,7 @@ Variants:
   trainer         ``parallel.shard_lanes`` with its default implementation for the mesh;
   kinematic       shard_map of ``arm7`` in ``kinematic`` mode (plain JAX, no MJX: the control that compiles);
   unicycle        shard_map of ``unicycle`` in ``dynamic`` mode (MJX, another model);
+  unicycle_kinematic   ``unicycle`` in ``kinematic`` mode (plain JAX, an ``mjx.Data`` carried in the state);
   cholesky        shard_map of no env: a batched Cholesky factorisation and solve of 7 x 7 systems per lane
                   and step, as MJX's forward dynamics factorises the mass matrix (is the linear-algebra
                   custom call what does not compile?);
@@ -67,10 +68,11 @@ DEFAULT = ["one_device", "jit_sharded", "vmap", "trainer", "shard_map", "shard_m
 DEFAULT += [f"shard_map+{f}" for f in FLAGS]
 
 
-OPS = ("gather", "scatter", "segment_sum", "quat", "fori")
+OPS = ("gather", "scatter", "segment_sum", "quat", "fori", "empty_const", "empty_carry")
 """The ``op:<name>`` variants: a gather / scatter-add with NumPy indices, a ``segment_sum`` with NumPy segment ids,
 quaternion products with a NumPy table of quaternions (as MJX's kinematics composes body frames), a ``fori_loop``
-over a NumPy table."""
+over a NumPy table, a closed-over zero-size constant (MJX's models and data hold many), a zero-size array in every
+lane's loop state (as an ``mjx.Data`` carried in an env's state)."""
 
 
 def op_roll(keys, steps: int, op: str):
@@ -105,9 +107,20 @@ def op_roll(keys, steps: int, op: str):
         if op == "quat":
             q = quat_mul(table, x[:64].reshape(16, 4))
             return (q / jnp.linalg.norm(q, axis=-1, keepdims=True)).reshape(64)
+        if op == "empty_const":
+            return jnp.concatenate([x[:63], jnp.asarray(empty).reshape(-1), x[63:] + jnp.sum(empty)]) * 0.9
         return jax.lax.fori_loop(0, 16, lambda i, y: y * 0.9 + jnp.tile(jnp.asarray(table)[i], 16), x)
 
+    empty = np.zeros((1, 0), np.float32)
     x = jax.vmap(lambda k: jax.random.normal(k, (64,)))(keys)
+    if op == "empty_carry":  # [lanes, 64] and [lanes, 0] carried through the loop
+        def step2(c, _):
+            y, e = c
+            y = jax.vmap(lambda v: jax.lax.fori_loop(0, 4, lambda i, w: w * 0.9 + 0.1, v))(y)
+            return (y, e * 2.0), jnp.mean(y) + jnp.sum(e)
+
+        (x, _), r = jax.lax.scan(step2, (x, jnp.zeros((x.shape[0], 0), jnp.float32)), None, length=steps)
+        return x, parallel.pmean(r)
 
     def body(x, _):
         x = jax.vmap(one)(x)
@@ -222,6 +235,7 @@ def child(variant: str, lanes: int, steps: int) -> None:
     from jaxrl_robot import parallel
 
     name, config = {"kinematic": ("arm7", {"mode": "kinematic"}), "unicycle": ("unicycle", {"mode": "dynamic"}),
+                    "unicycle_kinematic": ("unicycle", {"mode": "kinematic"}),
                     "sparse": ("arm7", {"jacobian": "sparse"})}.get(variant, ("arm7", {}))  # fmt: skip
     env = envs_mjx.make(name, **config)
     wrapped = wrap_for_training(env, episode_length=50)
