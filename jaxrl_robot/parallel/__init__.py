@@ -161,9 +161,54 @@ def shard_lanes(
     device's value is returned). ``impl``: ``"shard_map"`` or ``"vmap"`` (default:
     :func:`lane_map_impl`).
     """
-    if lane_map_impl(mesh, impl) == "shard_map":
+    if lane_map_impl(mesh, impl) != "shard_map":
+        return _vmap_lanes(fn, mesh, in_specs, out_specs)
+    if mesh.shape[LANES] == 1:
         return jax.shard_map(fn, mesh=mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False)
-    return _vmap_lanes(fn, mesh, in_specs, out_specs)
+    return _shard_map_no_empty_constants(fn, mesh, in_specs, out_specs)
+
+
+def _shard_map_no_empty_constants(fn: Callable[..., Any], mesh: Mesh, in_specs: Any, out_specs: Any) -> Callable:
+    """``jax.shard_map`` of ``fn`` over several devices, each zero-size array ``fn`` closes over made inside the
+    mapped program (``jnp.zeros``) instead of being one of its constants.
+
+    XLA:GPU dies (segmentation fault) compiling a ``shard_map`` program over several GPUs that holds a zero-size
+    constant, and compiles one that makes the same array inside it
+    (``benchmarks/results/gpu-nvidia_h200x2-multigpu_repro-empty.md``); MJX's models and data hold dozens of
+    zero-size arrays, and an env's state can carry an ``mjx.Data``. ``fn`` is traced once on this device's slice
+    of the inputs (``jax.make_jaxpr`` with the lane axis bound); without zero-size constants it is mapped as it is.
+    """
+    num = mesh.shape[LANES]
+
+    def local(spec: PartitionSpec, x: Any) -> jax.ShapeDtypeStruct:
+        shape = tuple(np.shape(x))
+        if _is_split(spec):
+            if not shape or shape[0] % num:
+                raise ValueError(f"a P('lanes') input of shape {shape} does not split over {num} devices")
+            shape = (shape[0] // num,) + shape[1:]
+        return jax.ShapeDtypeStruct(shape, x.dtype if hasattr(x, "dtype") else jnp.result_type(x))
+
+    def mapped(*args: Any) -> Any:
+        specs = (in_specs,) * len(args) if _is_spec(in_specs) else tuple(in_specs)
+        if len(specs) != len(args):
+            raise ValueError(f"in_specs has {len(specs)} entries for {len(args)} arguments")
+        shapes = [jax.tree.map(lambda s, a: jax.tree.map(lambda x: local(s, x), a), t, a, is_leaf=_is_spec)
+                  for t, a in zip(specs, args, strict=True)]  # fmt: skip
+        closed, out_shape = jax.make_jaxpr(fn, axis_env=[(LANES, num)], return_shape=True)(*shapes)
+        empty = [i for i, c in enumerate(closed.consts) if np.size(c) == 0]
+        if not empty:
+            return jax.shard_map(fn, mesh=mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False)(*args)
+        out_tree = jax.tree.structure(out_shape)
+
+        def body(*xs: Any) -> Any:
+            consts = list(closed.consts)
+            for i in empty:
+                consts[i] = jnp.zeros(np.shape(consts[i]), consts[i].dtype)
+            return jax.tree.unflatten(out_tree, jax.core.eval_jaxpr(closed.jaxpr, consts, *jax.tree.leaves(xs)))
+
+        return jax.shard_map(body, mesh=mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False)(*args)
+
+    return mapped
 
 
 def _is_spec(x: Any) -> bool:
