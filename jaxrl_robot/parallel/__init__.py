@@ -23,20 +23,21 @@ of two ways (``impl``; the environment variable ``JAXRL_LANE_MAP`` overrides the
   the mesh, so XLA's automatic SPMD partitioner places one slice per device and turns the
   reductions into all-reduces. The default on a mesh of several devices where MJX physics is mapped.
 
-Why ``vmap`` on several devices, and only where MJX physics is mapped: with MuJoCo MJX physics inside
-the body (``arm7`` in ``pd`` mode, ``unicycle`` in ``dynamic`` mode, ``scara``), XLA:GPU (jax 0.11.2,
-mujoco-mjx 3.17.0, two H200s) ends the process with a segmentation fault while compiling the
-``shard_map`` program; the same step under ``jax.jit`` with lane shardings compiles and runs, and so do
-kinematic envs and a bare ``shard_map`` + ``psum``. The reproducer is ``python -m benchmarks.multigpu_repro``
-(each variant in its own process; see its results file in ``benchmarks/results/``). But the partitioned
-``vmap`` program can be far slower on GPUs: DDPG's single learner with HER on ``arm7`` in ``kinematic``
-mode ran 25-29 k env-steps/s on two H200s under ``vmap`` against 1.17 M under ``shard_map`` and 1.16 M on
-one H200 (``benchmarks/results/gpu-nvidia_h200x4-lane_map-ddpg.md``). So the trainers take ``shard_map``
-on several devices too wherever the env declares that it steps no MJX physics
-(``envs_mjx.base.steps_mjx_physics``; :func:`lane_map_impl`'s ``mjx_physics``), and ``vmap`` only for MJX
-physics (and for envs that declare nothing). Both implementations run the same arithmetic, so they agree
-up to float summation order (``tests/agents/test_ppo_devices.py`` checks 4 fake CPU devices of either kind
-against one).
+Why ``vmap`` on several devices where MJX physics is mapped: XLA:GPU (jax 0.11.2, two H200s) ends the process
+with a segmentation fault while compiling a ``shard_map`` program over several GPUs that holds a zero-size constant,
+and MJX's models and data hold dozens (``benchmarks/results/gpu-nvidia_h200x2-multigpu_repro-empty.md``; the
+reproducer is ``python -m benchmarks.multigpu_repro``, each variant in its own process). :func:`shard_lanes` now
+makes such arrays inside the program (:func:`_shard_map_no_empty_constants`), and MJX physics compiles and runs
+under ``shard_map`` on two H200s (``arm7`` in ``pd`` mode with either Jacobian, ``unicycle`` in both modes, the
+observations of one device; ``benchmarks/results/gpu-nvidia_h200x2-multigpu_repro-no-empty.md``); its speed there
+is not measured yet, so MJX physics keeps ``vmap`` by default (``JAXRL_LANE_MAP=shard_map`` takes the other). The
+partitioned ``vmap`` program can be far slower on GPUs: DDPG's single learner with HER on ``arm7`` in
+``kinematic`` mode ran 25-29 k env-steps/s on two H200s under ``vmap`` against 1.17 M under ``shard_map`` and
+1.16 M on one H200 (``benchmarks/results/gpu-nvidia_h200x4-lane_map-ddpg.md``). So the trainers take
+``shard_map`` on several devices wherever the env declares that it steps no MJX physics
+(``envs_mjx.base.steps_mjx_physics``; :func:`lane_map_impl`'s ``mjx_physics``), and ``vmap`` for MJX physics (and
+for envs that declare nothing). Both implementations run the same arithmetic, so they agree up to float summation
+order (``tests/agents/test_ppo_devices.py`` checks 4 fake CPU devices of either kind against one).
 
 Runs over several processes (joining one, a lost process found at once) are :mod:`.multihost`'s, re-exported
 here; this package is the only place in the library that asks JAX about devices and backends.
