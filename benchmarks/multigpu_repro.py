@@ -297,23 +297,17 @@ def child(variant: str, lanes: int, steps: int) -> None:
         mapped = parallel.shard_lanes(roll_with, mesh, (parallel.P(parallel.LANES), spec_m),
                                       (parallel.P(parallel.LANES), parallel.P()), impl="shard_map")  # fmt: skip
         placed = jax.device_put(keys, parallel.lane_sharding(mesh))
-        t0 = time.perf_counter()
-        compiled = jax.jit(mapped).lower(placed, model).compile()
-        t1 = time.perf_counter()
-        obs, r = compiled(placed, model)
-        report(label, n_dev, t1 - t0, obs, r)
+        run_program(label, n_dev, lambda: (mapped, (placed, model)))
         return
     if variant.endswith("/arg"):  # the model as a replicated argument of the mapped function, not a constant
         model = jax.device_put(built, parallel.NamedSharding(mesh, parallel.P()))  # replicated
         spec_m = jax.tree.map(lambda _: parallel.P(), model)
         mapped = parallel.shard_lanes(lambda k, mod: pmean_second(stage_roll(k, steps, variant[6:-4], mod)), mesh,
                                       (parallel.P(parallel.LANES), spec_m), (parallel.P(parallel.LANES), parallel.P()))
-        t0 = time.perf_counter()
-        compiled = jax.jit(mapped).lower(jax.device_put(keys, parallel.lane_sharding(mesh)), model).compile()
-        t1 = time.perf_counter()
-        obs, r = compiled(jax.device_put(keys, parallel.lane_sharding(mesh)), model)
-        report(label, n_dev, t1 - t0, obs, r)
+        placed = jax.device_put(keys, parallel.lane_sharding(mesh))
+        run_program(label, n_dev, lambda: (mapped, (placed, model)))
         return
+    placed = jax.device_put(keys, parallel.lane_sharding(mesh))
     if variant == "jit_sharded":
         split = parallel.lane_sharding(mesh)
         fn = jax.jit(roll, in_shardings=split, out_shardings=(split, parallel.lane_sharding(mesh, False)))
@@ -321,23 +315,30 @@ def child(variant: str, lanes: int, steps: int) -> None:
         impl = {"trainer": None, "vmap": "vmap"}.get(variant, "shard_map")
         specs = (parallel.P(parallel.LANES), (parallel.P(parallel.LANES), parallel.P()))
         placed = jax.device_put(keys, parallel.lane_sharding(mesh))
-        t0 = time.perf_counter()
-        g, consts = constants_as_arguments(parallel.shard_lanes(roll, mesh, *specs, impl=impl), placed,
-                                                    mesh=mesh)  # fmt: skip
-        compiled = jax.jit(g).lower(consts, placed).compile()
-        t1 = time.perf_counter()
-        obs, r = compiled(consts, placed)
-        report(label, n_dev, t1 - t0, obs, r)
+
+        def hoisted():  # traced inside the compile clock
+            g, consts = constants_as_arguments(parallel.shard_lanes(roll, mesh, *specs, impl=impl), placed, mesh=mesh)
+            return g, (consts, placed)
+
+        run_program(label, n_dev, hoisted)
         return
     else:
         impl = {"trainer": None, "vmap": "vmap"}.get(variant, "shard_map")
         specs = (parallel.P(parallel.LANES), (parallel.P(parallel.LANES), parallel.P()))
-        fn = jax.jit(parallel.shard_lanes(roll, mesh, *specs, impl=impl))
+        fn = parallel.shard_lanes(roll, mesh, *specs, impl=impl)
+    run_program(label, n_dev, lambda: (fn, (placed,)))
+
+
+def run_program(label: str, n_dev: int, build) -> None:
+    """``build() -> (fn, args)``, then ``fn`` jitted, lowered for ``args`` and compiled (all on the compile clock),
+    called on ``args``, and its result line reported."""
+    import jax
+
     t0 = time.perf_counter()
-    spec = jax.ShapeDtypeStruct(keys.shape, keys.dtype, sharding=parallel.lane_sharding(mesh))
-    compiled = fn.lower(spec).compile()
+    fn, args = build()
+    compiled = jax.jit(fn).lower(*args).compile()
     t1 = time.perf_counter()
-    obs, r = compiled(jax.device_put(keys, parallel.lane_sharding(mesh)))
+    obs, r = compiled(*args)
     report(label, n_dev, t1 - t0, obs, r)
 
 

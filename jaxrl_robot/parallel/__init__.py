@@ -184,15 +184,12 @@ def _shard_map_no_empty_constants(fn: Callable[..., Any], mesh: Mesh, in_specs: 
     def local(spec: PartitionSpec, x: Any) -> jax.ShapeDtypeStruct:
         shape = tuple(np.shape(x))
         if _is_split(spec):
-            if not shape or shape[0] % num:
-                raise ValueError(f"a P('lanes') input of shape {shape} does not split over {num} devices")
+            _check_split(shape, num)
             shape = (shape[0] // num,) + shape[1:]
         return jax.ShapeDtypeStruct(shape, x.dtype if hasattr(x, "dtype") else jnp.result_type(x))
 
     def mapped(*args: Any) -> Any:
-        specs = (in_specs,) * len(args) if _is_spec(in_specs) else tuple(in_specs)
-        if len(specs) != len(args):
-            raise ValueError(f"in_specs has {len(specs)} entries for {len(args)} arguments")
+        specs = _arg_specs(in_specs, args)
         shapes = [jax.tree.map(lambda s, a: jax.tree.map(lambda x: local(s, x), a), t, a, is_leaf=_is_spec)
                   for t, a in zip(specs, args, strict=True)]  # fmt: skip
         closed, out_shape = jax.make_jaxpr(fn, axis_env=[(LANES, num)], return_shape=True)(*shapes)
@@ -210,6 +207,20 @@ def _shard_map_no_empty_constants(fn: Callable[..., Any], mesh: Mesh, in_specs: 
         return jax.shard_map(body, mesh=mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False)(*args)
 
     return mapped
+
+
+def _arg_specs(in_specs: Any, args: tuple) -> tuple:
+    """One spec-tree per positional argument: ``in_specs`` itself when it is one spec for every argument."""
+    specs = (in_specs,) * len(args) if _is_spec(in_specs) else tuple(in_specs)
+    if len(specs) != len(args):
+        raise ValueError(f"in_specs has {len(specs)} entries for {len(args)} arguments")
+    return specs
+
+
+def _check_split(shape: tuple, num: int) -> None:
+    """A ``P("lanes")`` input's leading axis must split evenly over ``num`` devices."""
+    if not shape or shape[0] % num:
+        raise ValueError(f"a P('lanes') input of shape {shape} does not split over {num} devices")
 
 
 def _is_spec(x: Any) -> bool:
@@ -232,8 +243,7 @@ def _vmap_lanes(fn: Callable[..., Any], mesh: Mesh, in_specs: Any, out_specs: An
 
     def to_devices(x: jax.Array) -> jax.Array:
         x = jnp.asarray(x)
-        if x.ndim == 0 or x.shape[0] % num:
-            raise ValueError(f"a P('lanes') input of shape {x.shape} does not split over {num} devices")
+        _check_split(x.shape, num)
         x = x.reshape((num, x.shape[0] // num) + x.shape[1:])
         return jax.lax.with_sharding_constraint(x, split_sharding)
 
@@ -245,9 +255,7 @@ def _vmap_lanes(fn: Callable[..., Any], mesh: Mesh, in_specs: Any, out_specs: An
         return jax.lax.with_sharding_constraint(x[0], replicated)
 
     def mapped(*args: Any) -> Any:
-        specs = (in_specs,) * len(args) if _is_spec(in_specs) else tuple(in_specs)
-        if len(specs) != len(args):
-            raise ValueError(f"in_specs has {len(specs)} entries for {len(args)} arguments")
+        specs = _arg_specs(in_specs, args)
         ins, axes = [], []
         for spec_tree, arg in zip(specs, args, strict=True):
             split = jax.tree.map(lambda s, a: jax.tree.map(lambda _: _is_split(s), a), spec_tree, arg, is_leaf=_is_spec)
